@@ -1,0 +1,169 @@
+"""Executors for the standalone backend, shaped as ``rclpy.executors``.
+
+One Cyclone DDS wait set holds a read condition per subscription, the context's guard condition
+(shutdown) and the discovery readers; the wait ends at the first of new data, shutdown, the next
+timer or the caller's timeout. Each :meth:`SingleThreadedExecutor.spin_once` then runs every
+callback that is ready (rclpy runs one), subscriptions first, then due timers.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from cyclonedds.core import WaitSet
+
+from exo_has_runtime.errors import ExternalShutdownException
+from exo_has_runtime.standalone.context import Context, get_default_context
+from exo_has_runtime.standalone.node import Node
+
+# Longest single wait: the Python-level SIGINT handler only runs between waits.
+_MAX_WAIT_NS = 100_000_000
+
+
+class SingleThreadedExecutor:
+    """Runs the callbacks of its nodes in the calling thread."""
+
+    def __init__(self, *, context: Context | None = None) -> None:
+        self.context = context if context is not None else get_default_context()
+        self._nodes: list[Node] = []
+        self._waitset: WaitSet | None = None
+        self._attached_version: tuple[int, ...] | None = None
+        self._shutdown = False
+
+    def add_node(self, node: Node) -> bool:
+        """Add a node; return False if it was there already."""
+        if node in self._nodes:
+            return False
+        self._nodes.append(node)
+        return True
+
+    def remove_node(self, node: Node) -> None:
+        """Remove a node."""
+        if node in self._nodes:
+            self._nodes.remove(node)
+
+    def get_nodes(self) -> list[Node]:
+        """Return the nodes."""
+        return list(self._nodes)
+
+    def shutdown(self, timeout_sec: float | None = None) -> bool:
+        """Stop spinning and forget the nodes."""
+        self._shutdown = True
+        self._nodes.clear()
+        return True
+
+    def _ready_waitset(self) -> WaitSet:
+        version = tuple(id(node) ^ node.entities_version for node in self._nodes)
+        if self._waitset is None or version != self._attached_version:
+            waitset = WaitSet(self.context.participant)
+            waitset.attach(self.context.guard_condition)
+            for condition in self.context.graph_conditions:
+                waitset.attach(condition)
+            for node in self._nodes:
+                for subscription in node.subscriptions:
+                    waitset.attach(subscription.condition)
+            self._waitset = waitset
+            self._attached_version = version
+        return self._waitset
+
+    def _timers(self) -> list[Any]:
+        return [timer for node in self._nodes for timer in node.timers]
+
+    def spin_once(self, timeout_sec: float | None = None) -> None:
+        """Wait for work up to ``timeout_sec`` (None: until some arrives) and do it.
+
+        Raises
+        ------
+        ExternalShutdownException
+            If the context is or gets shut down.
+
+        """
+        deadline = None if timeout_sec is None else time.monotonic_ns() + int(timeout_sec * 1e9)
+        while True:
+            if not self.context.ok() or self._shutdown:
+                raise ExternalShutdownException('the context was shut down')
+            waitset = self._ready_waitset()
+            wait_ns = _MAX_WAIT_NS
+            for timer in self._timers():
+                due = timer.time_until_next_call()
+                if due is not None:
+                    wait_ns = min(wait_ns, due)
+            if deadline is not None:
+                wait_ns = min(wait_ns, max(0, deadline - time.monotonic_ns()))
+            triggered = waitset.wait(wait_ns)
+            if not self.context.ok() or self._shutdown:
+                raise ExternalShutdownException('the context was shut down')
+            worked = self._run_ready(triggered > 0)
+            if worked or (deadline is not None and time.monotonic_ns() >= deadline):
+                return
+
+    def _run_ready(self, triggered: bool) -> bool:
+        worked = False
+        if triggered:
+            self.context.refresh_graph()
+            for node in list(self._nodes):
+                for subscription in node.subscriptions:
+                    for message in subscription.take():
+                        subscription.callback(message)
+                        worked = True
+        for timer in self._timers():
+            if timer.is_ready():
+                timer.call()
+                worked = True
+        return worked
+
+    def spin(self) -> None:
+        """Run callbacks until the context is shut down.
+
+        Raises
+        ------
+        ExternalShutdownException
+            When the context is shut down (SIGTERM, or shutdown() from a callback).
+
+        """
+        while True:
+            self.spin_once()
+
+    def spin_until_future_complete(self, future: Any, timeout_sec: float | None = None) -> None:
+        """Spin until ``future.done()`` or the timeout."""
+        deadline = None if timeout_sec is None else time.monotonic() + timeout_sec
+        while not future.done():
+            remaining = None if deadline is None else deadline - time.monotonic()
+            if remaining is not None and remaining <= 0:
+                return
+            self.spin_once(remaining)
+
+
+_global_executors: dict[int, SingleThreadedExecutor] = {}
+
+
+def get_global_executor(context: Context | None = None) -> SingleThreadedExecutor:
+    """Return the executor that module-level spin() and spin_once() use."""
+    context = context if context is not None else get_default_context()
+    executor = _global_executors.get(id(context))
+    if executor is None or executor._shutdown:
+        executor = SingleThreadedExecutor(context=context)
+        _global_executors[id(context)] = executor
+    return executor
+
+
+def spin(node: Node, executor: SingleThreadedExecutor | None = None) -> None:
+    """Run the node's callbacks until shutdown, as ``rclpy.spin``."""
+    executor = executor if executor is not None else get_global_executor(node.context)
+    try:
+        executor.add_node(node)
+        executor.spin()
+    finally:
+        executor.remove_node(node)
+
+
+def spin_once(node: Node, *, executor: SingleThreadedExecutor | None = None,
+              timeout_sec: float | None = None) -> None:
+    """Do the node's ready work, waiting up to ``timeout_sec``, as ``rclpy.spin_once``."""
+    executor = executor if executor is not None else get_global_executor(node.context)
+    try:
+        executor.add_node(node)
+        executor.spin_once(timeout_sec=timeout_sec)
+    finally:
+        executor.remove_node(node)
