@@ -77,8 +77,8 @@ else:
     from exo_has_runtime.standalone import (
         Clock,
         ClockType,
-        Duration,
         DurabilityPolicy,
+        Duration,
         HistoryPolicy,
         Node,
         Parameter,

@@ -10,7 +10,6 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Union
 
 import yaml
 
@@ -18,7 +17,9 @@ from exo_has_runtime.errors import CommandLineError
 from exo_has_runtime.names import RemapRule
 
 #: A parameter value as ROS 2 stores it.
-ParameterValue = Union[bool, int, float, str, bytes, list[bool], list[int], list[float], list[str]]
+ParameterValue = (
+    bool | int | float | str | bytes | list[bool] | list[int] | list[float] | list[str]
+)
 
 _LOG_LEVELS = ('debug', 'info', 'warn', 'error', 'fatal')
 _FLAGS_WITHOUT_VALUE = frozenset((
@@ -212,11 +213,13 @@ def _collect_nodes(
                 msg = f'parameters file {origin}: "ros__parameters" must sit under a node name'
                 raise CommandLineError(msg)
             if not isinstance(value, Mapping):
-                msg = f'parameters file {origin}: "ros__parameters" of {"/".join(path)} is not a mapping'
+                where = '/'.join(path)
+                msg = f'parameters file {origin}: "ros__parameters" of {where} is not a mapping'
                 raise CommandLineError(msg)
             pattern = '/' + '/'.join(p.strip('/') for p in path)
             for name, item in _flatten(value, ''):
-                out.append(ParameterOverride(pattern, name, _check_value(name, item, origin), origin))
+                value_checked = _check_value(name, item, origin)
+                out.append(ParameterOverride(pattern, name, value_checked, origin))
         elif isinstance(value, Mapping):
             _collect_nodes(value, [*path, str(key)], origin, out)
         else:
@@ -241,13 +244,13 @@ def _check_value(name: str, value: object, origin: str) -> ParameterValue:
         return value
     if isinstance(value, list):
         if not value:
-            msg = f'parameter {name!r} ({origin}): an empty list has no type; give at least one item'
+            msg = f'parameter {name!r} ({origin}): an empty list has no type; give one item'
             raise CommandLineError(msg)
         kinds = {type(item) for item in value}
         if len(kinds) == 1 and kinds <= {bool, int, float, str}:
             return value
         if kinds == {int, float}:
-            msg = f'parameter {name!r} ({origin}): list mixes integers and floats; write 1.0, not 1'
+            msg = f'parameter {name!r} ({origin}): list mixes integers and floats (write 1.0)'
             raise CommandLineError(msg)
         msg = f'parameter {name!r} ({origin}): list items must all be bool, int, float or str'
         raise CommandLineError(msg)

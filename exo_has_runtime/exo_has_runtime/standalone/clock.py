@@ -28,7 +28,7 @@ class Duration:
     __slots__ = ('_nanoseconds',)
 
     def __init__(self, *, seconds: float = 0, nanoseconds: int = 0) -> None:
-        self._nanoseconds = int(round(seconds * _NS_PER_S)) + int(nanoseconds)
+        self._nanoseconds = round(seconds * _NS_PER_S) + int(nanoseconds)
 
     @property
     def nanoseconds(self) -> int:
@@ -60,11 +60,11 @@ class Duration:
 class Time:
     """A point in time of a given clock type, in nanoseconds since its epoch."""
 
-    __slots__ = ('_nanoseconds', '_clock_type')
+    __slots__ = ('_clock_type', '_nanoseconds')
 
     def __init__(self, *, seconds: float = 0, nanoseconds: int = 0,
                  clock_type: ClockType = ClockType.SYSTEM_TIME) -> None:
-        total = int(round(seconds * _NS_PER_S)) + int(nanoseconds)
+        total = round(seconds * _NS_PER_S) + int(nanoseconds)
         if total < 0:
             msg = f'a Time cannot be negative, got {total} ns'
             raise ValueError(msg)

@@ -22,12 +22,18 @@ from typing import Any
 
 import numpy as np
 import yaml
-from cyclonedds.idl import IdlMeta, IdlStruct, types
-from rosbags.typesys import Stores, get_types_from_msg, get_typestore
-from rosbags.typesys.base import Nodetype, TypesysError
+from cyclonedds.idl import IdlStruct
+from cyclonedds.idl import types as _types
+from cyclonedds.idl._main import IdlMeta as _IdlMeta
+from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
+from rosbags.typesys.base import Nodetype  # type: ignore[attr-defined]
 from rosbags.typesys.store import Typestore
 
 from exo_has_runtime.errors import MessageDefinitionError, UnknownMessageTypeError
+
+# The binding's type constructors are untyped; treat them as such.
+IdlMeta: Any = _IdlMeta
+types: Any = _types
 
 #: Environment variable: extra interface package roots (or folders of them), os.pathsep-separated.
 INTERFACE_PATH_ENV = 'EXO_HAS_INTERFACE_PATH'
@@ -51,7 +57,8 @@ _PRIMITIVES: dict[str, tuple[Any, Callable[[], object], str]] = {
 
 _TYPE = r'(?P<type>[A-Za-z][A-Za-z0-9_]*(?:/[A-Za-z][A-Za-z0-9_]*){0,2}(?:<=\d+)?)' \
     r'(?P<array>\[(?:<=)?\d*\])?'
-_FIELD_LINE = re.compile(_TYPE + r'\s+(?P<name>[a-z](?:[a-z0-9]|_(?!_))*)(?:\s+(?P<default>.+))?\Z')
+_FIELD_LINE = re.compile(
+    _TYPE + r'\s+(?P<name>[a-z](?:[a-z0-9]|_(?!_))*)(?:\s+(?P<default>.+))?\Z')
 _CONST_LINE = re.compile(_TYPE + r'\s+(?P<name>[A-Z][A-Z0-9_]*)\s*=\s*(?P<value>.+)\Z')
 
 
@@ -351,15 +358,17 @@ class MessageRegistry:
             namespace['__annotations__'][field_name] = idl_type
             namespace[field_name] = dataclasses.field(default_factory=factory)
             field_types[field_name] = ros_type
-        cls = dataclasses.dataclass(IdlMeta(short, (IdlStruct,), namespace, typename=typename))
+        cls: Any = dataclasses.dataclass(IdlMeta(short, (IdlStruct,), namespace,
+                                                 typename=typename))
         cls.__module__ = f'{package}.msg'
-        cls.__ros_type__ = type_name  # type: ignore[attr-defined]
+        cls.__ros_type__ = type_name
         for const_name, _, value in constants:
             setattr(cls, const_name, value)
-        cls.get_fields_and_field_types = classmethod(  # type: ignore[attr-defined]
+        cls.get_fields_and_field_types = classmethod(
             lambda _cls, _types=field_types: dict(_types))
         self._classes[type_name] = cls
-        return cls
+        built: type[IdlStruct] = cls
+        return built
 
     def _field_type(self, owner: str, field_name: str,
                     node: Any) -> tuple[Any, Callable[[], object], str]:

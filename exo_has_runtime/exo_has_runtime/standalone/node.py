@@ -229,7 +229,7 @@ class Node:
                  automatically_declare_parameters_from_overrides: bool = False) -> None:
         self.context = context if context is not None else get_default_context()
         if not self.context.ok():
-            raise RuntimeError('the context is not initialised: call init() before creating a node')
+            raise RuntimeError('the context is not initialised: call init() before a node')
         local = parse_ros_args(['node', '--ros-args', *cli_args[1:]] if cli_args
                                and cli_args[0] == '--ros-args' else ['node', *(cli_args or [])])
         global_args = self.context.arguments if use_global_arguments else None
@@ -342,11 +342,13 @@ class Node:
         """Set parameters one by one; each result says whether it was taken."""
         return [self._parameters.set([parameter]) for parameter in parameter_list]
 
-    def set_parameters_atomically(self, parameter_list: Sequence[Parameter]) -> SetParametersResult:
+    def set_parameters_atomically(
+            self, parameter_list: Sequence[Parameter]) -> SetParametersResult:
         """Set parameters all or none."""
         return self._parameters.set(list(parameter_list))
 
-    def add_on_set_parameters_callback(self, callback: SetParametersCallback) -> SetParametersCallback:
+    def add_on_set_parameters_callback(
+            self, callback: SetParametersCallback) -> SetParametersCallback:
         """Register a callback that may reject parameter changes; it is returned as a handle."""
         self._parameters.add_callback(callback)
         return callback
@@ -424,7 +426,7 @@ class Node:
                      callback_group: Any = None, clock: Clock | None = None,
                      autostart: bool = True) -> Timer:
         """Create a timer on the node's clock (or the given one)."""
-        timer = Timer(callback, int(round(timer_period_sec * 1e9)), clock or self._clock,
+        timer = Timer(callback, round(timer_period_sec * 1e9), clock or self._clock,
                       autostart)
         self._timers.append(timer)
         self.entities_version += 1

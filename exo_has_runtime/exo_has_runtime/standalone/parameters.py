@@ -136,7 +136,7 @@ class Parameter:
             Parameter.Type.STRING_ARRAY: 'string_array_value',
         }.get(self._type)
         if field_name is not None:
-            value = self._value
+            value: Any = self._value
             if self._type == Parameter.Type.BYTE_ARRAY:
                 value = list(value if isinstance(value, bytes) else b''.join(value))
             elif self._type >= Parameter.Type.BOOL_ARRAY:

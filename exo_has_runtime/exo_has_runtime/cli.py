@@ -1,0 +1,37 @@
+"""``exo-has``: one command with a subcommand per task, gathered from the installed packages.
+
+Packages register subcommands in the ``exo_has.commands`` entry-point group as
+``name = module:function``; the function takes the remaining arguments and returns an exit code.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable, Sequence
+from importlib.metadata import entry_points
+
+
+def subcommands() -> dict[str, Callable[[Sequence[str]], int]]:
+    """Return the registered subcommands by name (loaded lazily by the caller)."""
+    return {ep.name: ep.load for ep in entry_points(group='exo_has.commands')}  # type: ignore[misc]
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``exo-has SUBCOMMAND [ARGS...]``."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    commands = subcommands()
+    if not args or args[0] in ('-h', '--help'):
+        names = ', '.join(sorted(commands)) or '(none installed)'
+        print(f'usage: exo-has SUBCOMMAND [ARGS...]\nsubcommands: {names}')
+        return 0 if args else 2
+    name, rest = args[0], args[1:]
+    if name not in commands:
+        known = ', '.join(sorted(commands))
+        print(f'exo-has: unknown subcommand {name!r}; known: {known}', file=sys.stderr)
+        return 2
+    function = commands[name]()
+    return int(function(rest) or 0)
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""A two-node demonstration of the runtime: HAS commands out, HAS states back."""

@@ -1,0 +1,65 @@
+"""Answer every HAS command with a HAS state that echoes it (transport only, no physics)."""
+
+from __future__ import annotations
+
+import math
+import sys
+
+from exo_has_runtime import (
+    ExternalShutdownException,
+    Node,
+    get_message,
+    init,
+    qos_profile_sensor_data,
+    spin,
+    try_shutdown,
+)
+from exo_has_runtime.topics import JOINT_NAMES, has_command_topic, has_state_topic
+
+HasCommand = get_message('exo_has_msgs/msg/HasCommand')
+HasState = get_message('exo_has_msgs/msg/HasState')
+
+
+class StateEcho(Node):
+    """Publish, for each command received, a state with the command's stamp and speed."""
+
+    def __init__(self) -> None:
+        super().__init__('state_echo')
+        self._state_publishers = {
+            joint: self.create_publisher(HasState, has_state_topic(joint), qos_profile_sensor_data)
+            for joint in JOINT_NAMES}
+        for joint in JOINT_NAMES:
+            self.create_subscription(HasCommand, has_command_topic(joint), self._on_command,
+                                     qos_profile_sensor_data)
+
+    def _on_command(self, command: HasCommand) -> None:
+        publisher = self._state_publishers.get(command.joint)
+        if publisher is None:
+            self.get_logger().warning(f'command for unknown joint {command.joint!r} ignored',
+                                      throttle_duration_sec=1.0)
+            return
+        state = HasState(joint=command.joint, motor_speed=command.motor_speed,
+                         motor_speed_command=command.motor_speed, position=math.nan,
+                         velocity=math.nan, pressure_a=math.nan, pressure_b=math.nan,
+                         motor_current=math.nan, load_force=math.nan)
+        state.header.stamp = command.header.stamp
+        publisher.publish(state)
+
+
+def main(args: list[str] | None = None) -> None:
+    """Run the node until interrupted."""
+    init(args=args)
+    node = None
+    try:
+        node = StateEcho()
+        spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        try_shutdown()
+
+
+if __name__ == '__main__':
+    main(sys.argv)

@@ -1,0 +1,36 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'exo_has_runtime'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/config', glob('config/*.yaml')),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='exo_has developers',
+    maintainer_email='dev@exo-has.invalid',
+    description=(
+        'The seam between exo_has nodes and ROS 2: rclpy where installed, a standalone '
+        'Cyclone DDS backend wire-compatible with rmw_cyclonedds_cpp elsewhere.'
+    ),
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [
+            'exo-has = exo_has_runtime.cli:main',
+            'command_talker = exo_has_runtime.demo.command_talker:main',
+            'state_echo = exo_has_runtime.demo.state_echo:main',
+        ],
+        'exo_has.commands': [
+            'demo = exo_has_runtime.demo.session:main',
+        ],
+    },
+)
