@@ -7,6 +7,7 @@ Pure functions, free of any middleware. The accepted syntax is rcl's (Jazzy):
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +23,25 @@ ParameterValue = (
 )
 
 _LOG_LEVELS = ('debug', 'info', 'warn', 'error', 'fatal')
+
+
+class RosYamlLoader(yaml.SafeLoader):
+    """YAML loader that reads floats as rcl does: ``1e9`` and ``1.0e9`` are doubles.
+
+    PyYAML follows YAML 1.1, where an exponent needs a dot and a sign (``1.0e+9``), so
+    ``bulk_modulus: 1.0e9`` would otherwise arrive as a string.
+    """
+
+
+RosYamlLoader.add_implicit_resolver(
+    'tag:yaml.org,2002:float',
+    re.compile(r'^[-+]?(?:\d[\d_]*)?(?:\.\d*)?[eE][-+]?\d+$'),
+    list('-+0123456789.'))
+
+
+def load_yaml(text: str) -> object:
+    """Parse YAML text with :class:`RosYamlLoader`."""
+    return yaml.load(text, Loader=RosYamlLoader)
 _FLAGS_WITHOUT_VALUE = frozenset((
     '--enable-rosout-logs', '--disable-rosout-logs', '--enable-stdout-logs',
     '--disable-stdout-logs', '--enable-external-lib-logs', '--disable-external-lib-logs',
@@ -156,7 +176,7 @@ def _parse_param_rule(text: str) -> ParameterOverride:
         msg = f'malformed parameter rule {text!r}: expected name:=value'
         raise CommandLineError(msg)
     try:
-        loaded = yaml.safe_load(raw) if raw else ''
+        loaded = load_yaml(raw) if raw else ''
     except yaml.YAMLError as exc:
         msg = f'parameter {name!r}: cannot parse value {raw!r}: {exc}'
         raise CommandLineError(msg) from exc
@@ -186,7 +206,7 @@ def load_params_file(path: Path) -> list[ParameterOverride]:
     """
     origin = str(path)
     try:
-        document = yaml.safe_load(path.read_text(encoding='utf-8'))
+        document = load_yaml(path.read_text(encoding='utf-8'))
     except OSError as exc:
         msg = f'cannot read parameters file {origin}: {exc.strerror}'
         raise CommandLineError(msg) from exc

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Sequence
 
@@ -24,13 +25,16 @@ def run_demo(duration_s: float, rate_hz: float) -> int:
 
     """
     python = sys.executable
-    echo = subprocess.Popen([python, '-m', 'exo_has_runtime.demo.state_echo'])
+    # -m puts the working directory on sys.path, where a workspace's package folders would
+    # shadow the installed packages: run the nodes from a neutral folder.
+    neutral = tempfile.gettempdir()
+    echo = subprocess.Popen([python, '-m', 'exo_has_runtime.demo.state_echo'], cwd=neutral)
     try:
         time.sleep(0.5)  # let the echo subscribe so the first commands are answered
         talker = subprocess.run(
             [python, '-m', 'exo_has_runtime.demo.command_talker', '--ros-args',
              '-p', f'duration:={float(duration_s)}', '-p', f'rate:={float(rate_hz)}'],
-            check=False)
+            check=False, cwd=neutral)
     finally:
         echo.terminate()
         echo.wait(timeout=10)

@@ -172,6 +172,17 @@ class Context:
             self._ok = False
             if self._guard is not None:
                 self._guard.set(True)
+            if self._participant is not None:
+                # Leave the domain at once: peers see the endpoints go, and the participant
+                # index (at most 33 per machine with the loopback configuration) is freed.
+                delete_entity(self._participant)
+                self._participant = None
+                self._guard = None
+                self._discovery_writer = None
+                self._topics.clear()
+                self._graph.clear()
+                self._graph_readers.clear()
+                self._graph_conditions.clear()
             if self._previous_sigterm is not None \
                     and threading.current_thread() is threading.main_thread():
                 signal.signal(signal.SIGTERM, self._previous_sigterm)

@@ -11,9 +11,9 @@ from __future__ import annotations
 import time
 from typing import Any
 
-from cyclonedds.core import WaitSet
+from cyclonedds.core import DDSException, WaitSet
 
-from exo_has_runtime.errors import ExternalShutdownException
+from exo_has_runtime.errors import ExternalShutdownException, RuntimeSeamError
 from exo_has_runtime.standalone.context import Context, get_default_context
 from exo_has_runtime.standalone.node import Node
 
@@ -91,10 +91,16 @@ class SingleThreadedExecutor:
                     wait_ns = min(wait_ns, due)
             if deadline is not None:
                 wait_ns = min(wait_ns, max(0, deadline - time.monotonic_ns()))
-            triggered = waitset.wait(wait_ns)
-            if not self.context.ok() or self._shutdown:
-                raise ExternalShutdownException('the context was shut down')
-            worked = self._run_ready(triggered > 0)
+            try:
+                triggered = waitset.wait(wait_ns)
+                if not self.context.ok() or self._shutdown:
+                    raise ExternalShutdownException('the context was shut down')
+                worked = self._run_ready(triggered > 0)
+            except (DDSException, RuntimeSeamError):
+                # A shutdown (SIGTERM, or a callback) deletes the DDS entities under our feet.
+                if not self.context.ok():
+                    raise ExternalShutdownException('the context was shut down') from None
+                raise
             if worked or (deadline is not None and time.monotonic_ns() >= deadline):
                 return
 
@@ -104,6 +110,8 @@ class SingleThreadedExecutor:
             self.context.refresh_graph()
             for node in list(self._nodes):
                 for subscription in node.subscriptions:
+                    if not self.context.ok():
+                        return worked
                     for message in subscription.take():
                         subscription.callback(message)
                         worked = True

@@ -21,7 +21,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from cyclonedds.idl import IdlStruct
 from cyclonedds.idl import types as _types
 from cyclonedds.idl._main import IdlMeta as _IdlMeta
@@ -29,6 +28,7 @@ from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typest
 from rosbags.typesys.base import Nodetype  # type: ignore[attr-defined]
 from rosbags.typesys.store import Typestore
 
+from exo_has_runtime.arguments import load_yaml
 from exo_has_runtime.errors import MessageDefinitionError, UnknownMessageTypeError
 
 # The binding's type constructors are untyped; treat them as such.
@@ -188,7 +188,8 @@ def parse_msg_file(type_name: str, path: Path) -> tuple[dict[str, Any], dict[str
             )
             raise MessageDefinitionError(msg)
         if field is not None and field['default'] is not None:
-            defaults[field['name']] = _parse_default(path, number, field['default'])
+            defaults[field['name']] = _parse_default(
+                path, number, field['type'], field['array'], field['default'])
     try:
         definitions = get_types_from_msg(text, type_name)
     except TypesysError as exc:
@@ -201,12 +202,27 @@ def _is_string_constant(line: str) -> bool:
     return bool(re.match(r'\s*(w?string)(<=\d+)?\s+[A-Z][A-Z0-9_]*\s*=', line))
 
 
-def _parse_default(path: Path, number: int, literal: str) -> object:
+def _parse_default(path: Path, number: int, ros_type: str, array: str | None,
+                   literal: str) -> object:
+    base = ros_type.split('<=', 1)[0]
+    if base in ('string', 'wstring') and not array:
+        return literal.strip().strip('"\'')
     try:
-        return yaml.safe_load(literal)
-    except yaml.YAMLError as exc:
+        value = load_yaml(literal)
+    except Exception as exc:
         msg = f'{path}:{number}: cannot parse default value {literal!r}: {exc}'
         raise MessageDefinitionError(msg) from exc
+    items = value if array and isinstance(value, list) else [value]
+    if array and not isinstance(value, list):
+        items = [object()]
+    expected: tuple[type, ...] = (str,) if base in ('string', 'wstring') else \
+        (bool,) if base == 'bool' else (float, int) if base.startswith('float') else (int,)
+    for item in items:
+        if not isinstance(item, expected) or (isinstance(item, bool) and bool not in expected):
+            msg = f'{path}:{number}: default value {literal!r} does not fit type {ros_type}' \
+                f'{array or ""}'
+            raise MessageDefinitionError(msg)
+    return value
 
 
 class MessageRegistry:

@@ -1,0 +1,1 @@
+"""Helpers for launch-free, multi-process tests of exo_has nodes."""

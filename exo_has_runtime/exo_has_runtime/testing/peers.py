@@ -1,0 +1,134 @@
+"""Generic peer processes for transport tests: record raw messages, publish given ones.
+
+``python -m exo_has_runtime.testing.peers record TOPIC=TYPE ... [--qos ...] [--count N]``
+prints one JSON line per message received (``{"topic": ..., "cdr": <hex>}``) and ``READY`` once
+subscribed. ``... publish TOPIC=TYPE=JSON ...`` publishes each message (fields as JSON) once a
+subscriber matched (or at once with ``--no-wait``), then every ``--period`` seconds, for
+``--duration`` seconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from exo_has_runtime import (
+    DurabilityPolicy,
+    ExternalShutdownException,
+    Node,
+    QoSProfile,
+    ReliabilityPolicy,
+    get_message,
+    init,
+    spin_once,
+    try_shutdown,
+)
+
+
+def fill_message(message: Any, fields: Mapping[str, Any]) -> Any:
+    """Set a message's fields from a mapping, recursing into nested messages."""
+    for name, value in fields.items():
+        current = getattr(message, name)
+        if isinstance(value, Mapping):
+            fill_message(current, value)
+        elif isinstance(value, list) and value and isinstance(value[0], Mapping):
+            item_type = type(current[0]) if current else None
+            if item_type is None:
+                nested = message.get_fields_and_field_types()[name]
+                item_type = get_message(nested.split('<', 1)[-1].split(',')[0].rstrip('>'))
+            setattr(message, name, [fill_message(item_type(), item) for item in value])
+        else:
+            setattr(message, name, value)
+    return message
+
+
+def _qos(text: str) -> QoSProfile:
+    reliability, durability, depth = [*text.split(','), '', '', ''][:3]
+    return QoSProfile(
+        depth=int(depth or 10),
+        reliability=ReliabilityPolicy[(reliability or 'reliable').upper()],
+        durability=DurabilityPolicy[(durability or 'volatile').upper()])
+
+
+def record(node: Node, specs: Sequence[str], qos: QoSProfile, count: int,
+           duration_s: float) -> None:
+    """Print received messages as JSON lines until ``count`` arrived or time is up."""
+    received = 0
+
+    def callback_for(topic: str) -> Any:
+        def on_message(data: bytes) -> None:
+            nonlocal received
+            received += 1
+            print(json.dumps({'topic': topic, 'cdr': bytes(data).hex()}), flush=True)
+        return on_message
+
+    for spec in specs:
+        topic, type_name = spec.split('=', 1)
+        node.create_subscription(get_message(type_name), topic, callback_for(topic), qos, raw=True)
+    print('READY', flush=True)
+    deadline = time.monotonic() + duration_s
+    while (count <= 0 or received < count) and time.monotonic() < deadline:
+        spin_once(node, timeout_sec=0.05)
+
+
+def publish(node: Node, specs: Sequence[str], qos: QoSProfile, wait: bool, period_s: float,
+            duration_s: float) -> None:
+    """Publish the given messages, repeating every ``period_s``."""
+    items = []
+    for spec in specs:
+        topic, type_name, fields = spec.split('=', 2)
+        message_type = get_message(type_name)
+        publisher = node.create_publisher(message_type, topic, qos)
+        items.append((publisher, fill_message(message_type(), json.loads(fields))))
+    print('READY', flush=True)
+    deadline = time.monotonic() + duration_s
+    while wait and any(p.get_subscription_count() == 0 for p, _ in items):
+        if time.monotonic() > deadline:
+            return
+        spin_once(node, timeout_sec=0.02)
+    while True:
+        for publisher, message in items:
+            publisher.publish(message)
+        print('PUBLISHED', flush=True)
+        end = time.monotonic() + period_s
+        while time.monotonic() < min(end, deadline):
+            spin_once(node, timeout_sec=0.02)
+        if time.monotonic() >= deadline:
+            return
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Parse the arguments and run the peer."""
+    parser = argparse.ArgumentParser(prog='peers')
+    parser.add_argument('role', choices=('record', 'publish'))
+    parser.add_argument('specs', nargs='+', help='TOPIC=TYPE (record) or TOPIC=TYPE=JSON')
+    parser.add_argument('--qos', default='reliable,volatile,10',
+                        help='RELIABILITY,DURABILITY,DEPTH')
+    parser.add_argument('--count', type=int, default=0, help='record: stop after N messages')
+    parser.add_argument('--duration', type=float, default=10.0, help='seconds to run')
+    parser.add_argument('--period', type=float, default=3600.0, help='publish: repeat period')
+    parser.add_argument('--no-wait', action='store_true', help='publish: do not wait for match')
+    parser.add_argument('--name', default='peer', help='node name')
+    args, ros_args = parser.parse_known_args(sys.argv[1:] if argv is None else argv)
+    init(args=['peers', *ros_args])
+    node = Node(args.name)
+    try:
+        if args.role == 'record':
+            record(node, args.specs, _qos(args.qos), args.count, args.duration)
+        else:
+            publish(node, args.specs, _qos(args.qos), not args.no_wait, args.period,
+                    args.duration)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

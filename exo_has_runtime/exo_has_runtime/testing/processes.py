@@ -1,0 +1,105 @@
+"""Start nodes as separate processes for tests, without launch files.
+
+A :class:`NodeProcess` runs ``python -m MODULE ARGS...`` with its output in a file, can wait for
+a line of that output, and stops the process as ``ros2 launch`` would: SIGINT, then SIGTERM,
+then SIGKILL.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from types import TracebackType
+
+
+class NodeProcess:
+    """A node (or any Python module) running in its own process.
+
+    Parameters
+    ----------
+    module : str
+        Module run with ``python -m``.
+    args : Sequence[str]
+        Its arguments.
+    env : Mapping[str, str] or None
+        Extra environment variables.
+
+    """
+
+    def __init__(self, module: str, args: Sequence[str] = (),
+                 env: Mapping[str, str] | None = None) -> None:
+        self.module = module
+        # Kept open while the process runs; closed by stop().
+        self._log = tempfile.NamedTemporaryFile(
+            prefix=module.rsplit('.', 1)[-1] + '-', suffix='.log', delete=False)
+        self.log_path = Path(self._log.name)
+        self.process = subprocess.Popen(
+            [sys.executable, '-u', '-m', module, *args], stdout=self._log,
+            stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+            env={**os.environ, **(env or {})},
+            # -m puts the working directory first on sys.path; in a workspace root the package
+            # folders would shadow the installed packages, so run from the log's folder.
+            cwd=self.log_path.parent)
+
+    def __enter__(self) -> NodeProcess:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.stop()
+
+    @property
+    def output(self) -> str:
+        """Everything the process wrote so far (stdout and stderr)."""
+        return self.log_path.read_text(encoding='utf-8', errors='replace')
+
+    def wait_for_output(self, pattern: str, timeout_s: float = 10.0) -> re.Match[str]:
+        """Wait until the output matches a regular expression.
+
+        Raises
+        ------
+        TimeoutError
+            If it does not within the timeout, or the process ends first; the output is quoted.
+
+        """
+        deadline = time.monotonic() + timeout_s
+        compiled = re.compile(pattern)
+        while True:
+            match = compiled.search(self.output)
+            if match:
+                return match
+            if self.process.poll() is not None or time.monotonic() > deadline:
+                state = (f'exited with {self.process.returncode}'
+                         if self.process.poll() is not None else f'no match in {timeout_s} s')
+                msg = f'{self.module}: {state} waiting for {pattern!r}; output:\n{self.output}'
+                raise TimeoutError(msg)
+            time.sleep(0.02)
+
+    def wait(self, timeout_s: float = 10.0) -> int:
+        """Wait for the process to end on its own and return its exit code."""
+        return self.process.wait(timeout=timeout_s)
+
+    def stop(self, timeout_s: float = 5.0) -> int:
+        """Stop the process (SIGINT, SIGTERM, then SIGKILL) and return its exit code."""
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+            if self.process.poll() is not None:
+                break
+            self.process.send_signal(sig)
+            try:
+                self.process.wait(timeout=timeout_s)
+            except subprocess.TimeoutExpired:
+                continue
+        self._log.close()
+        return self.process.wait()
+
+    def kill(self) -> None:
+        """End the process at once (SIGKILL), as a crash would."""
+        self.process.kill()
+        self.process.wait()

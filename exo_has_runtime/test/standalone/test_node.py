@@ -1,0 +1,162 @@
+import math
+import time
+
+import pytest
+
+from exo_has_runtime.errors import (
+    ExternalShutdownException,
+    InvalidParameterTypeException,
+    InvalidParameterValueException,
+    ParameterNotDeclaredException,
+    TopicTypeMismatchError,
+)
+from exo_has_runtime.standalone import (
+    Node,
+    Parameter,
+    QoSProfile,
+    SetParametersResult,
+    SingleThreadedExecutor,
+    get_message,
+)
+from exo_has_runtime.standalone.parameters import parameter_descriptor
+
+HasCommand = get_message('exo_has_msgs/msg/HasCommand')
+HasState = get_message('exo_has_msgs/msg/HasState')
+FloatingPointRange = get_message('rcl_interfaces/msg/FloatingPointRange')
+
+
+def spin_until(executor, predicate, timeout_s=5.0):
+    deadline = time.monotonic() + timeout_s
+    while not predicate() and time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.05)
+    return predicate()
+
+
+def test_a_message_published_in_one_node_reaches_another(ros_context):
+    talker = Node('talker', context=ros_context)
+    listener = Node('listener', context=ros_context)
+    received = []
+    listener.create_subscription(HasCommand, 'left_hip/has_command', received.append, 10)
+    publisher = talker.create_publisher(HasCommand, 'left_hip/has_command', 10)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(listener)
+    assert spin_until(executor, lambda: publisher.get_subscription_count() == 1)
+    publisher.publish(HasCommand(joint='left_hip', motor_speed=-12.5, enable=True))
+    assert spin_until(executor, lambda: received)
+    assert received[0].motor_speed == -12.5 and received[0].joint == 'left_hip'
+
+
+def test_publishing_a_message_of_another_type_is_a_type_error(ros_context):
+    node = Node('talker', context=ros_context)
+    publisher = node.create_publisher(HasCommand, 'cmd', 10)
+    with pytest.raises(TypeError, match='takes exo_has_msgs/msg/HasCommand, not .*HasState'):
+        publisher.publish(HasState())
+
+
+def test_one_topic_with_two_types_in_one_process_is_refused(ros_context):
+    node = Node('talker', context=ros_context)
+    node.create_publisher(HasCommand, 'shared', 10)
+    with pytest.raises(TopicTypeMismatchError, match="'rt/shared'.*HasCommand.*HasState"):
+        node.create_subscription(HasState, 'shared', lambda _: None, 10)
+
+
+def test_timers_fire_at_their_period_and_count_missed_periods(ros_context):
+    node = Node('ticker', context=ros_context)
+    stamps = []
+    timer = node.create_timer(0.01, lambda: stamps.append(time.monotonic()))
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    assert spin_until(executor, lambda: len(stamps) >= 20)
+    periods = [b - a for a, b in zip(stamps, stamps[1:])]
+    assert sorted(periods)[len(periods) // 2] == pytest.approx(0.01, abs=0.003)
+    time.sleep(0.055)  # five periods pass without spinning
+    before = len(stamps)
+    executor.spin_once(timeout_sec=0.001)
+    assert len(stamps) == before + 1 and timer.missed_periods >= 4
+
+
+def test_parameters_come_from_the_command_line_and_the_params_file(tmp_path, ros_context):
+    params = tmp_path / 'params.yaml'
+    params.write_text('/**:\n  ros__parameters:\n    rate: 1000.0\n    joint: left_knee\n')
+    ros_context.arguments.parameter_overrides.clear()
+    node = Node('plant', context=ros_context, cli_args=[
+        '--ros-args', '--params-file', str(params), '-p', 'gain:=35.0',
+        '-p', 'bulk_modulus:=1.2e9'])
+    assert node.declare_parameter('rate', 200.0).value == 1000.0
+    assert node.declare_parameter('joint', 'left_hip').value == 'left_knee'
+    assert node.declare_parameter('gain', 1.0).value == 35.0
+    assert node.declare_parameter('bulk_modulus', 1.0e9).value == 1.2e9
+    assert node.declare_parameter('untouched', 7).value == 7
+    assert node.get_parameter('use_sim_time').value is False
+
+
+def test_a_value_of_the_wrong_type_names_the_parameter(ros_context):
+    node = Node('plant', context=ros_context, cli_args=['--ros-args', '-p', 'rate:=fast'])
+    with pytest.raises(InvalidParameterTypeException,
+                       match=r"'rate' of node /plant: value 'fast' \(from -p\) is of type STRING"):
+        node.declare_parameter('rate', 200.0)
+    node.declare_parameter('gain', 35.0)
+    result = node.set_parameters([Parameter('gain', value=35)])[0]
+    assert not result.successful and "'gain'" in result.reason and 'INTEGER' in result.reason
+
+
+def test_ranges_and_callbacks_guard_parameter_values(ros_context):
+    node = Node('plant', context=ros_context, cli_args=['--ros-args', '-p', 'rate:=5000.0'])
+    descriptor = parameter_descriptor(
+        floating_point_range=[FloatingPointRange(from_value=1.0, to_value=2000.0)])
+    with pytest.raises(InvalidParameterValueException, match=r"'rate'.*outside \[1.0, 2000.0\]"):
+        node.declare_parameter('rate', 200.0, descriptor)
+    node.declare_parameter('gain', 35.0)
+    node.add_on_set_parameters_callback(lambda ps: SetParametersResult(
+        successful=all(p.value >= 0 for p in ps), reason='gains are non-negative'))
+    assert node.set_parameters([Parameter('gain', value=40.0)])[0].successful
+    rejected = node.set_parameters([Parameter('gain', value=-1.0)])[0]
+    assert not rejected.successful and 'non-negative' in rejected.reason
+    assert node.get_parameter('gain').value == 40.0
+    with pytest.raises(ParameterNotDeclaredException, match="'nope' of node /plant"):
+        node.get_parameter('nope')
+    with pytest.raises(InvalidParameterValueException):
+        node.declare_parameter('other', math.nan, descriptor)
+
+
+def test_remaps_and_namespace_take_effect(ros_context):
+    node = Node('controller', context=ros_context, cli_args=[
+        '--ros-args', '-r', '__ns:=/exo', '-r', '__node:=hip_controller',
+        '-r', 'reference:=/gait/joint_reference'])
+    assert node.get_fully_qualified_name() == '/exo/hip_controller'
+    assert node.get_logger().name == 'exo.hip_controller'
+    subscription = node.create_subscription(
+        get_message('sensor_msgs/msg/JointState'), 'reference', lambda _: None, 10)
+    publisher = node.create_publisher(HasCommand, 'left_hip/has_command', 10)
+    assert subscription.topic_name == '/gait/joint_reference'
+    assert publisher.topic_name == '/exo/left_hip/has_command'
+
+
+def test_use_sim_time_makes_the_clock_and_timers_follow_the_clock_topic(ros_context):
+    node = Node('plant', context=ros_context, cli_args=['--ros-args', '-p', 'use_sim_time:=true'])
+    clock_source = Node('clock_source', context=ros_context)
+    clock_type = get_message('rosgraph_msgs/msg/Clock')
+    clock_publisher = clock_source.create_publisher(clock_type, '/clock', QoSProfile(depth=1))
+    ticks = []
+    node.create_timer(0.5, lambda: ticks.append(node.get_clock().now().nanoseconds))
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    assert spin_until(executor, lambda: clock_publisher.get_subscription_count() == 1)
+    for step in range(1, 9):  # 8 simulated quarter seconds, much faster than real time
+        clock_publisher.publish(clock_type(clock=get_message('builtin_interfaces/msg/Time')(
+            sec=100 + step // 4, nanosec=(step % 4) * 250_000_000)))
+        assert spin_until(executor, lambda s=step: node.get_clock().now().nanoseconds
+                          == (100 * 10**9 + s * 250_000_000), timeout_s=2.0)
+        executor.spin_once(timeout_sec=0.01)
+    assert node.get_clock().ros_time_is_active
+    assert len(ticks) == 3  # at 100.75, 101.25 and 101.75 s: first /clock at 100.25 s + 0.5 s
+
+
+def test_shutdown_from_a_callback_ends_spin_with_external_shutdown(ros_context):
+    node = Node('quitter', context=ros_context)
+    node.create_timer(0.01, ros_context.shutdown)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    with pytest.raises(ExternalShutdownException):
+        executor.spin()
+    node.destroy_node()  # still safe after the context is gone
