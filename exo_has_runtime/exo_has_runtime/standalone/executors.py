@@ -107,7 +107,8 @@ class SingleThreadedExecutor:
     def _run_ready(self, triggered: bool) -> bool:
         worked = False
         if triggered:
-            self.context.refresh_graph()
+            if any(condition.triggered for condition in self.context.graph_conditions):
+                self.context.refresh_graph()
             for node in list(self._nodes):
                 for subscription in node.subscriptions:
                     if not self.context.ok():

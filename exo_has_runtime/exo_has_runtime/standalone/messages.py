@@ -30,6 +30,7 @@ from rosbags.typesys.store import Typestore
 
 from exo_has_runtime.arguments import load_yaml
 from exo_has_runtime.errors import MessageDefinitionError, UnknownMessageTypeError
+from exo_has_runtime.standalone.cdr import generate_codec
 
 # The binding's type constructors are untyped; treat them as such.
 IdlMeta: Any = _IdlMeta
@@ -232,6 +233,9 @@ class MessageRegistry:
     ----------
     search_paths : Iterable[Path] or None
         Where to look for interface packages (default: :func:`interface_search_paths`).
+    generated_codec : bool
+        Serialise with code generated per type (default) rather than with the Cyclone DDS
+        binding's interpreted serialiser (same bytes, several times slower; for benchmarks).
 
     Raises
     ------
@@ -240,8 +244,10 @@ class MessageRegistry:
 
     """
 
-    def __init__(self, search_paths: Iterable[Path] | None = None) -> None:
+    def __init__(self, search_paths: Iterable[Path] | None = None,
+                 generated_codec: bool = True) -> None:
         self.typestore: Typestore = get_typestore(Stores.ROS2_JAZZY)
+        self._generated_codec = generated_codec
         self._defaults: dict[str, dict[str, object]] = {}
         self._files = find_msg_files(interface_search_paths() if search_paths is None
                                      else search_paths)
@@ -315,7 +321,7 @@ class MessageRegistry:
     def serialize(self, message: Any) -> bytes:
         """Serialise a message to CDR as rmw_cyclonedds_cpp sends it (XCDR1, padded to 4)."""
         data: bytes = message.serialize(use_version_2=False)
-        return data + b'\0' * (-len(data) % 4)
+        return data + bytes(-len(data) & 3)
 
     def deserialize(self, data: bytes, type_name: str) -> Any:
         """Deserialise CDR bytes (with their encapsulation header) to a message."""
@@ -383,6 +389,15 @@ class MessageRegistry:
         cls.get_fields_and_field_types = classmethod(
             lambda _cls, _types=field_types: dict(_types))
         self._classes[type_name] = cls
+        if self._generated_codec:
+            # Replace the binding's interpreted serialiser by one generated for this type; the
+            # DDS writer and reader call these two.
+            serialize, deserialize = generate_codec(type_name, self.typestore.fielddefs,
+                                                    self.get_message)
+            cls.serialize = lambda message, buffer=None, endianness=None, use_version_2=None: \
+                serialize(message)
+            cls.deserialize = classmethod(
+                lambda _cls, data, has_header=True, use_version_2=None: deserialize(data))
         built: type[IdlStruct] = cls
         return built
 

@@ -19,6 +19,7 @@ from exo_has_runtime.standalone import (
     get_message,
 )
 from exo_has_runtime.standalone.parameters import parameter_descriptor
+import itertools
 
 HasCommand = get_message('exo_has_msgs/msg/HasCommand')
 HasState = get_message('exo_has_msgs/msg/HasState')
@@ -49,14 +50,14 @@ def test_a_message_published_in_one_node_reaches_another(ros_context):
 def test_publishing_a_message_of_another_type_is_a_type_error(ros_context):
     node = Node('talker', context=ros_context)
     publisher = node.create_publisher(HasCommand, 'cmd', 10)
-    with pytest.raises(TypeError, match='takes exo_has_msgs/msg/HasCommand, not .*HasState'):
+    with pytest.raises(TypeError, match=r'takes exo_has_msgs/msg/HasCommand, not .*HasState'):
         publisher.publish(HasState())
 
 
 def test_one_topic_with_two_types_in_one_process_is_refused(ros_context):
     node = Node('talker', context=ros_context)
     node.create_publisher(HasCommand, 'shared', 10)
-    with pytest.raises(TopicTypeMismatchError, match="'rt/shared'.*HasCommand.*HasState"):
+    with pytest.raises(TopicTypeMismatchError, match=r"'rt/shared'.*HasCommand.*HasState"):
         node.create_subscription(HasState, 'shared', lambda _: None, 10)
 
 
@@ -67,7 +68,7 @@ def test_timers_fire_at_their_period_and_count_missed_periods(ros_context):
     executor = SingleThreadedExecutor(context=ros_context)
     executor.add_node(node)
     assert spin_until(executor, lambda: len(stamps) >= 20)
-    periods = [b - a for a, b in zip(stamps, stamps[1:])]
+    periods = [b - a for a, b in itertools.pairwise(stamps)]
     assert sorted(periods)[len(periods) // 2] == pytest.approx(0.01, abs=0.003)
     time.sleep(0.055)  # five periods pass without spinning
     before = len(stamps)
