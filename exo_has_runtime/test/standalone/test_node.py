@@ -1,3 +1,4 @@
+import itertools
 import math
 import time
 
@@ -19,7 +20,6 @@ from exo_has_runtime.standalone import (
     get_message,
 )
 from exo_has_runtime.standalone.parameters import parameter_descriptor
-import itertools
 
 HasCommand = get_message('exo_has_msgs/msg/HasCommand')
 HasState = get_message('exo_has_msgs/msg/HasState')
