@@ -31,6 +31,7 @@ setup(
         ],
         'exo_has.commands': [
             'demo = exo_has_runtime.demo.session:main',
+            'dds-config = exo_has_runtime.dds_config:main',
         ],
     },
 )

@@ -10,10 +10,12 @@ import sys
 from collections.abc import Callable, Sequence
 from importlib.metadata import entry_points
 
+Command = Callable[[Sequence[str]], int]
 
-def subcommands() -> dict[str, Callable[[Sequence[str]], int]]:
-    """Return the registered subcommands by name (loaded lazily by the caller)."""
-    return {ep.name: ep.load for ep in entry_points(group='exo_has.commands')}  # type: ignore[misc]
+
+def subcommands() -> dict[str, Callable[[], Command]]:
+    """Return, by name, a loader of each registered subcommand (imported only when run)."""
+    return {ep.name: ep.load for ep in entry_points(group='exo_has.commands')}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -33,19 +33,11 @@ from cyclonedds.qos import Policy, Qos
 from cyclonedds.topic import Topic
 
 from exo_has_runtime.arguments import RosArguments, parse_ros_args
+from exo_has_runtime.dds_config import LOOPBACK_CONFIG
 from exo_has_runtime.errors import BackendError, TopicTypeMismatchError
 from exo_has_runtime.standalone.logging import get_logger, set_default_levels
 from exo_has_runtime.standalone.messages import MessageRegistry, default_registry
 
-#: rmw_cyclonedds_cpp's LOCALHOST discovery settings, restricted to the loopback interface.
-LOOPBACK_CONFIG = (
-    '<CycloneDDS><Domain id="any"><General>'
-    '<Interfaces><NetworkInterface address="127.0.0.1"/></Interfaces>'
-    '<AllowMulticast>false</AllowMulticast></General>'
-    '<Discovery><ParticipantIndex>auto</ParticipantIndex>'
-    '<MaxAutoParticipantIndex>32</MaxAutoParticipantIndex>'
-    '<Peers><Peer address="localhost"/></Peers></Discovery></Domain></CycloneDDS>'
-)
 DISCOVERY_TOPIC = 'ros_discovery_info'
 DISCOVERY_TYPE = 'rmw_dds_common/msg/ParticipantEntitiesInfo'
 _ANY_STATE = SampleState.Any | ViewState.Any | InstanceState.Any
