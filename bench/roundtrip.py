@@ -64,8 +64,9 @@ def _registry(stock: bool):
     return MessageRegistry(generated_codec=False) if stock else default_registry()
 
 
-def bare_echo(duration_s: float, stock: bool) -> None:
-    """Echo commands as states with the bare cyclonedds API."""
+def _bare_setup(stock: bool, write_type: str, read_type: str, write_suffix: str,
+                read_suffix: str) -> tuple[Any, Any, dict[str, Any], list[Any]]:
+    """Participant, message registry, writers by joint and readers of a bare transport."""
     from cyclonedds.core import WaitSet
     from cyclonedds.domain import DomainParticipant
 
@@ -74,12 +75,19 @@ def bare_echo(duration_s: float, stock: bool) -> None:
     os.environ.setdefault('CYCLONEDDS_URI', LOOPBACK_CONFIG)
     registry = _registry(stock)
     participant = DomainParticipant(domain_id_from_environment())
-    writers, readers = _bare_entities(participant, registry, STATE, COMMAND, 'has_state',
-                                      'has_command')
-    state_type = registry.get_message(STATE)
+    writers, readers = _bare_entities(participant, registry, write_type, read_type,
+                                      write_suffix, read_suffix)
     waitset = WaitSet(participant)
     for _, condition in readers:
         waitset.attach(condition)
+    return waitset, registry, writers, readers
+
+
+def bare_echo(duration_s: float, stock: bool) -> None:
+    """Echo commands as states with the bare cyclonedds API."""
+    waitset, registry, writers, readers = _bare_setup(stock, STATE, COMMAND, 'has_state',
+                                                      'has_command')
+    state_type = registry.get_message(STATE)
     print('READY', flush=True)
     end = time.monotonic() + duration_s
     while time.monotonic() < end:
@@ -94,20 +102,9 @@ def bare_echo(duration_s: float, stock: bool) -> None:
 
 def bare_client(rate_hz: float, duration_s: float, stock: bool) -> dict[str, object]:
     """Send commands at the rate with the bare API and time the echoed states."""
-    from cyclonedds.core import WaitSet
-    from cyclonedds.domain import DomainParticipant
-
-    from exo_has_runtime.standalone.context import LOOPBACK_CONFIG, domain_id_from_environment
-
-    os.environ.setdefault('CYCLONEDDS_URI', LOOPBACK_CONFIG)
-    registry = _registry(stock)
-    participant = DomainParticipant(domain_id_from_environment())
-    writers, readers = _bare_entities(participant, registry, COMMAND, STATE, 'has_command',
-                                      'has_state')
+    waitset, registry, writers, readers = _bare_setup(stock, COMMAND, STATE, 'has_command',
+                                                      'has_state')
     command_type = registry.get_message(COMMAND)
-    waitset = WaitSet(participant)
-    for _, condition in readers:
-        waitset.attach(condition)
     while any(len(w.get_matched_subscriptions()) == 0 for w in writers.values()):
         time.sleep(0.01)
     time.sleep(0.2)
