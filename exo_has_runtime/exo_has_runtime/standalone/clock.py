@@ -41,6 +41,11 @@ class Duration:
         sec, nanosec = divmod(self._nanoseconds, _NS_PER_S)
         return get_message('builtin_interfaces/msg/Duration')(sec=sec, nanosec=nanosec)
 
+    @classmethod
+    def from_msg(cls, msg: Any) -> Duration:
+        """Build a Duration from a builtin_interfaces/msg/Duration."""
+        return cls(nanoseconds=msg.sec * _NS_PER_S + msg.nanosec)
+
     def __eq__(self, other: object) -> bool:
         return isinstance(other, Duration) and other._nanoseconds == self._nanoseconds
 
@@ -105,6 +110,8 @@ class Time:
     def __add__(self, other: Duration) -> Time:
         return Time(nanoseconds=self._nanoseconds + other.nanoseconds, clock_type=self._clock_type)
 
+    __radd__ = __add__
+
     def __eq__(self, other: object) -> bool:
         return isinstance(other, Time) and other._nanoseconds == self._nanoseconds
 
@@ -138,12 +145,12 @@ class Clock:
         """Whether the clock follows simulated time."""
         return self._override_ns is not None
 
-    def set_ros_time_override(self, nanoseconds: int | None) -> None:
+    def set_ros_time_override(self, time: Time | int | None) -> None:
         """Follow simulated time from now on (None: back to the system clock)."""
         if self._clock_type != ClockType.ROS_TIME:
             msg = 'only a ROS_TIME clock can follow simulated time'
             raise ValueError(msg)
-        self._override_ns = nanoseconds
+        self._override_ns = time.nanoseconds if isinstance(time, Time) else time
 
     def now(self) -> Time:
         """Return the current time of this clock."""

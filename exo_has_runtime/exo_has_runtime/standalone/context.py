@@ -127,6 +127,7 @@ class Context:
         with self._lock:
             if self._ok:
                 raise RuntimeError('Context.init() must only be called once')
+            self._external_shutdown = False
             import sys
             self.arguments = parse_ros_args(list(sys.argv if args is None else args))
             set_default_levels(self.arguments.log_levels)
@@ -137,16 +138,20 @@ class Context:
                 self._previous_sigterm = signal.signal(signal.SIGTERM, self._on_sigterm)
 
     def _on_sigterm(self, signum: int, frame: FrameType | None) -> None:
+        # Runs between two bytecodes of the main thread, possibly inside shutdown() or
+        # participant creation: only request, and wake the executor, which shuts down.
         self._external_shutdown = True
-        self.shutdown()
+        guard = self._guard
+        if guard is not None:
+            guard.set(True)
 
     def ok(self) -> bool:
-        """Whether the context is initialised and not shut down."""
-        return self._ok
+        """Whether the context is initialised and neither shut down nor asked to by SIGTERM."""
+        return self._ok and not self._external_shutdown
 
     @property
     def shut_down_externally(self) -> bool:
-        """Whether a SIGTERM shut the context down."""
+        """Whether a SIGTERM asked the context to shut down."""
         return self._external_shutdown
 
     def shutdown(self) -> None:
@@ -162,6 +167,7 @@ class Context:
             if not self._ok:
                 raise RuntimeError('Context must be initialized before it can be shutdown')
             self._ok = False
+            self._nodes.clear()
             if self._guard is not None:
                 self._guard.set(True)
             if self._participant is not None:
@@ -213,7 +219,9 @@ class Context:
         discovery_type = registry.get_message(DISCOVERY_TYPE)
         topic = Topic(participant, DISCOVERY_TOPIC, discovery_type)
         self._topics[DISCOVERY_TOPIC] = (DISCOVERY_TYPE, topic)
+        type_hash = registry.type_hash(DISCOVERY_TYPE)
         self._discovery_writer = DataWriter(participant, topic, qos=Qos(
+            Policy.Userdata(f'typehash={type_hash};'.encode()),
             Policy.WriterDataLifecycle(autodispose=False),
             Policy.History.KeepLast(1),
             Policy.Reliability.Reliable(max_blocking_time=0x7FFFFFFFFFFFFFFF),

@@ -54,7 +54,7 @@ class SingleThreadedExecutor:
         return True
 
     def _ready_waitset(self) -> WaitSet:
-        version = tuple(id(node) ^ node.entities_version for node in self._nodes)
+        version = tuple(node.entities_version for node in self._nodes)
         if self._waitset is None or version != self._attached_version:
             waitset = WaitSet(self.context.participant)
             waitset.attach(self.context.guard_condition)
@@ -67,23 +67,39 @@ class SingleThreadedExecutor:
             self._attached_version = version
         return self._waitset
 
+    def _stopped(self) -> bool:
+        """Whether to stop; finish a SIGTERM's shutdown and raise as rclpy does.
+
+        Raises
+        ------
+        ExternalShutdownException
+            If a SIGTERM asked the context to shut down.
+
+        """
+        if self.context.shut_down_externally:
+            self.context.try_shutdown()
+            raise ExternalShutdownException('the context was shut down by a signal')
+        return not self.context.ok() or self._shutdown
+
     def _timers(self) -> list[Any]:
         return [timer for node in self._nodes for timer in node.timers]
 
     def spin_once(self, timeout_sec: float | None = None) -> None:
         """Wait for work up to ``timeout_sec`` (None: until some arrives) and do it.
 
+        Returns at once when the context is shut down.
+
         Raises
         ------
         ExternalShutdownException
-            If the context is or gets shut down.
+            If a SIGTERM shuts the context down.
 
         """
-        deadline = None if timeout_sec is None else time.monotonic_ns() + int(timeout_sec * 1e9)
+        deadline = None if timeout_sec is None or timeout_sec < 0 \
+            else time.monotonic_ns() + int(timeout_sec * 1e9)
         while True:
-            if not self.context.ok() or self._shutdown:
-                raise ExternalShutdownException('the context was shut down')
-            waitset = self._ready_waitset()
+            if self._stopped():
+                return
             wait_ns = _MAX_WAIT_NS
             for timer in self._timers():
                 due = timer.time_until_next_call()
@@ -92,14 +108,14 @@ class SingleThreadedExecutor:
             if deadline is not None:
                 wait_ns = min(wait_ns, max(0, deadline - time.monotonic_ns()))
             try:
-                triggered = waitset.wait(wait_ns)
-                if not self.context.ok() or self._shutdown:
-                    raise ExternalShutdownException('the context was shut down')
+                triggered = self._ready_waitset().wait(wait_ns)
+                if self._stopped():
+                    return
                 worked = self._run_ready(triggered > 0)
-            except (DDSException, RuntimeSeamError):
-                # A shutdown (SIGTERM, or a callback) deletes the DDS entities under our feet.
-                if not self.context.ok():
-                    raise ExternalShutdownException('the context was shut down') from None
+            except (DDSException, RuntimeSeamError, RuntimeError):
+                # A shutdown from a callback deletes the DDS entities under our feet.
+                if self._stopped():
+                    return
                 raise
             if worked or (deadline is not None and time.monotonic_ns() >= deadline):
                 return
@@ -111,8 +127,9 @@ class SingleThreadedExecutor:
                 self.context.refresh_graph()
             for node in list(self._nodes):
                 for subscription in node.subscriptions:
-                    if not self.context.ok():
-                        return worked
+                    # A callback may have destroyed it, or shut the context down.
+                    if subscription.destroyed or not self.context.ok():
+                        continue
                     for message in subscription.take():
                         subscription.callback(message)
                         worked = True
@@ -125,13 +142,15 @@ class SingleThreadedExecutor:
     def spin(self) -> None:
         """Run callbacks until the context is shut down.
 
+        Returns when the context is shut down (by a callback, say).
+
         Raises
         ------
         ExternalShutdownException
-            When the context is shut down (SIGTERM, or shutdown() from a callback).
+            When a SIGTERM shuts the context down.
 
         """
-        while True:
+        while not self._stopped():
             self.spin_once()
 
     def spin_until_future_complete(self, future: Any, timeout_sec: float | None = None) -> None:

@@ -63,7 +63,12 @@ class RcutilsLogger:
         """Return the threshold in force (own, else from ``--log-level``, else INFO)."""
         if self._level != LoggingSeverity.UNSET:
             return self._level
-        return _DEFAULT_LEVELS.get(self.name, _DEFAULT_LEVELS.get('', LoggingSeverity.INFO))
+        name = self.name
+        while name:  # 'exo.left_hip' inherits the level set for 'exo'
+            if name in _DEFAULT_LEVELS:
+                return _DEFAULT_LEVELS[name]
+            name = name.rpartition('.')[0]
+        return _DEFAULT_LEVELS.get('', LoggingSeverity.INFO)
 
     def is_enabled_for(self, severity: LoggingSeverity) -> bool:
         """Tell whether a message of this severity would be written."""

@@ -6,6 +6,8 @@ endpoints carry ``typehash=RIHS01_<hex>;`` in USER_DATA, and the QoS maps as in 
 
 from __future__ import annotations
 
+import itertools
+import struct
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -42,6 +44,8 @@ from exo_has_runtime.standalone.qos import QoSProfile, dds_qos, qos_from_depth
 
 _NEW_SAMPLES = SampleState.Any | ViewState.Any | InstanceState.Any
 _TAKE_BATCH = 64
+# Every change of any node's entities gets a new number, so executors know to rebuild.
+_generations = itertools.count(1)
 
 
 class Publisher:
@@ -108,6 +112,7 @@ class Subscription:
         self._reader = reader
         self.condition = ReadCondition(reader, _NEW_SAMPLES)
         self.gid = gid_of(reader)
+        self.destroyed = False
 
     @property
     def topic(self) -> str:
@@ -122,7 +127,18 @@ class Subscription:
         if self.raw:
             return [data for data, info in taken if info.valid_data]
         deserialize = self.msg_type.deserialize
-        return [deserialize(data) for data, info in taken if info.valid_data]
+        messages = []
+        for data, info in taken:
+            if not info.valid_data:
+                continue
+            try:
+                messages.append(deserialize(data))
+            except (ValueError, IndexError, struct.error) as exc:
+                # A malformed sample from a peer must not take the node down.
+                self._node.get_logger().error(
+                    f'dropped a malformed {self.msg_type.__ros_type__} on {self.topic_name}: '
+                    f'{exc}', throttle_duration_sec=1.0)
+        return messages
 
     def get_publisher_count(self) -> int:
         """Return the number of matched publishers."""
@@ -154,9 +170,12 @@ class Timer:
         self._next_ns = clock.now().nanoseconds + period_ns
 
     def _rebase_if_time_source_changed(self) -> None:
-        if self.clock.ros_time_is_active != self._sim:
+        now = self.clock.now().nanoseconds
+        # A new time source, or time jumping back (a restarted simulation): restart the period.
+        jumped_back = now < self._next_ns - self.timer_period_ns
+        if self.clock.ros_time_is_active != self._sim or jumped_back:
             self._sim = self.clock.ros_time_is_active
-            self._next_ns = self.clock.now().nanoseconds + self.timer_period_ns
+            self._next_ns = now + self.timer_period_ns
 
     def is_canceled(self) -> bool:
         """Whether the timer is cancelled."""
@@ -253,16 +272,20 @@ class Node:
         self._subscriptions: list[Subscription] = []
         self._timers: list[Timer] = []
         self._clock_subscription: Subscription | None = None
-        self.entities_version = 0
+        self.entities_version = next(_generations)
         self._destroyed = False
         self.context.add_node(id(self), self._name, self._namespace)
-        self._parameters.add_callback(self._on_use_sim_time)
-        self.declare_parameter('use_sim_time', False)
-        self._apply_use_sim_time(bool(self.get_parameter('use_sim_time').value))
-        if automatically_declare_parameters_from_overrides:
-            for name, override in chosen.items():
-                if not self._parameters.has(name):
-                    self.declare_parameter(name, override.value)
+        try:
+            self._parameters.add_callback(self._on_use_sim_time)
+            self.declare_parameter('use_sim_time', False)
+            self._apply_use_sim_time(bool(self.get_parameter('use_sim_time').value))
+            if automatically_declare_parameters_from_overrides:
+                for name, override in chosen.items():
+                    if not self._parameters.has(name):
+                        self.declare_parameter(name, override.value)
+        except BaseException:
+            self.destroy_node()  # leave the graph: this node never came to be
+            raise
 
     # --- names, logger, clock -------------------------------------------------------------
 
@@ -374,6 +397,8 @@ class Node:
             self._clock_subscription = self.create_subscription(
                 clock_type, '/clock', self._on_clock,
                 QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
+            # As rclpy: simulated time is 0 until the first /clock arrives.
+            self._clock.set_ros_time_override(0)
         elif not enabled and self._clock_subscription is not None:
             self.destroy_subscription(self._clock_subscription)
             self._clock_subscription = None
@@ -392,8 +417,8 @@ class Node:
                       qos: QoSProfile) -> tuple[str, Any, Any]:
         type_name = self._message_type_name(msg_type)
         fq_topic = self.resolve_topic_name(topic)
-        dds_name = fq_topic.lstrip('/') if qos.avoid_ros_namespace_conventions \
-            else 'rt' + fq_topic
+        # rmw_cyclonedds_cpp uses the expanded name as it is when asked to avoid conventions.
+        dds_name = fq_topic if qos.avoid_ros_namespace_conventions else 'rt' + fq_topic
         dds_topic = self.context.topic(dds_name, type_name, msg_type)
         type_hash = self.context.message_registry.type_hash(type_name)
         return fq_topic, dds_topic, dds_qos(qos, f'typehash={type_hash};'.encode())
@@ -418,7 +443,7 @@ class Node:
         reader = DataReader(self.context.participant, dds_topic, qos=dds)
         subscription = Subscription(self, msg_type, fq_topic, callback, qos, reader, raw)
         self._subscriptions.append(subscription)
-        self.entities_version += 1
+        self.entities_version = next(_generations)
         self.context.add_endpoint(id(self), subscription.gid, is_writer=False)
         return subscription
 
@@ -429,7 +454,7 @@ class Node:
         timer = Timer(callback, round(timer_period_sec * 1e9), clock or self._clock,
                       autostart)
         self._timers.append(timer)
-        self.entities_version += 1
+        self.entities_version = next(_generations)
         return timer
 
     def create_rate(self, frequency: float, clock: Clock | None = None) -> Any:
@@ -466,8 +491,9 @@ class Node:
         if subscription not in self._subscriptions:
             return False
         self._subscriptions.remove(subscription)
-        self.entities_version += 1
+        self.entities_version = next(_generations)
         self.context.remove_endpoint(id(self), subscription.gid)
+        subscription.destroyed = True
         delete_entity(subscription.condition)
         delete_entity(subscription._reader)
         return True
@@ -478,7 +504,7 @@ class Node:
             return False
         timer.cancel()
         self._timers.remove(timer)
-        self.entities_version += 1
+        self.entities_version = next(_generations)
         return True
 
     def destroy_node(self) -> None:

@@ -204,6 +204,10 @@ class ParameterStore:
             msg = f'parameter {name!r} of node {self._node_name} is already declared'
             raise ParameterAlreadyDeclaredException(msg)
         descriptor = descriptor if descriptor is not None else parameter_descriptor()
+        if isinstance(value, Parameter.Type):
+            # rclpy's idiom for a parameter without default: declare_parameter(name, Type.X).
+            descriptor.type = int(value)
+            value = None
         descriptor.name = name
         declared_type = _declared_type(name, value, descriptor)
         descriptor.type = int(declared_type)
@@ -269,12 +273,19 @@ class ParameterStore:
         SetParametersResult
             Unsuccessful (nothing changed) with the reason when a check or callback fails.
 
+        Raises
+        ------
+        ParameterNotDeclaredException
+            If a parameter is not declared (as rclpy raises).
+
         """
+        for parameter in parameters:
+            self.get(parameter.name)
         try:
             for parameter in parameters:
                 self._check_set(parameter)
             self._run_callbacks(list(parameters))
-        except (ParameterNotDeclaredException, InvalidParameterTypeException,
+        except (InvalidParameterTypeException,
                 InvalidParameterValueException, ParameterImmutableException) as exc:
             return SetParametersResult(successful=False, reason=str(exc))
         for parameter in parameters:
@@ -287,12 +298,13 @@ class ParameterStore:
         if descriptor.read_only:
             msg = f'parameter {parameter.name!r} of node {self._node_name} is read-only'
             raise ParameterImmutableException(msg)
-        if not descriptor.dynamic_typing and current.type_ != Parameter.Type.NOT_SET \
-                and parameter.type_ != current.type_:
+        declared = Parameter.Type(descriptor.type) if descriptor.type else current.type_
+        if not descriptor.dynamic_typing and declared != Parameter.Type.NOT_SET \
+                and parameter.type_ not in (declared, Parameter.Type.NOT_SET):
             msg = (
                 f'parameter {parameter.name!r} of node {self._node_name}: value '
                 f'{parameter.value!r} is of type {parameter.type_.name}, expected '
-                f'{current.type_.name}'
+                f'{declared.name}'
             )
             raise InvalidParameterTypeException(msg)
         self._check_range(parameter, descriptor, '')

@@ -1,5 +1,7 @@
 import itertools
 import math
+import os
+import signal
 import time
 
 import pytest
@@ -135,6 +137,7 @@ def test_remaps_and_namespace_take_effect(ros_context):
 
 def test_use_sim_time_makes_the_clock_and_timers_follow_the_clock_topic(ros_context):
     node = Node('plant', context=ros_context, cli_args=['--ros-args', '-p', 'use_sim_time:=true'])
+    assert node.get_clock().now().nanoseconds == 0  # no /clock yet
     clock_source = Node('clock_source', context=ros_context)
     clock_type = get_message('rosgraph_msgs/msg/Clock')
     clock_publisher = clock_source.create_publisher(clock_type, '/clock', QoSProfile(depth=1))
@@ -150,14 +153,85 @@ def test_use_sim_time_makes_the_clock_and_timers_follow_the_clock_topic(ros_cont
                           == (100 * 10**9 + s * 250_000_000), timeout_s=2.0)
         executor.spin_once(timeout_sec=0.01)
     assert node.get_clock().ros_time_is_active
-    assert len(ticks) == 3  # at 100.75, 101.25 and 101.75 s: first /clock at 100.25 s + 0.5 s
+    # Simulated time is 0 until the first /clock, whose jump to 100.25 s fires the timer once;
+    # then it keeps its 0.5 s grid, as rcl timers do.
+    assert ticks == [100_250_000_000, 100_500_000_000, 101_000_000_000, 101_500_000_000,
+                     102_000_000_000]
 
 
-def test_shutdown_from_a_callback_ends_spin_with_external_shutdown(ros_context):
+def test_shutdown_from_a_callback_ends_spin_normally(ros_context):
     node = Node('quitter', context=ros_context)
     node.create_timer(0.01, ros_context.shutdown)
     executor = SingleThreadedExecutor(context=ros_context)
     executor.add_node(node)
+    executor.spin()  # returns, as rclpy's spin does once the context is shut down
+    assert not ros_context.ok()
+    node.destroy_node()  # still safe after the context is gone
+
+
+def test_sigterm_ends_spin_with_external_shutdown(ros_context):
+    node = Node('terminated', context=ros_context)
+    node.create_timer(0.01, lambda: os.kill(os.getpid(), signal.SIGTERM))
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
     with pytest.raises(ExternalShutdownException):
         executor.spin()
-    node.destroy_node()  # still safe after the context is gone
+    assert not ros_context.ok()
+    node.destroy_node()
+    ros_context.try_shutdown()
+
+
+def test_a_callback_may_destroy_another_subscription_or_its_node(ros_context):
+    node = Node('self_destroying', context=ros_context)
+    publisher = node.create_publisher(HasCommand, 'a', 10)
+    other = node.create_subscription(HasCommand, 'b', lambda _: None, 10)
+    node.create_publisher(HasCommand, 'b', 10).publish(HasCommand())
+    calls = []
+
+    def on_a(message):
+        calls.append(message)
+        node.destroy_subscription(other)
+        node.destroy_node()
+
+    node.create_subscription(HasCommand, 'a', on_a, 10)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    assert spin_until(executor, lambda: publisher.get_subscription_count() == 1)
+    publisher.publish(HasCommand())
+    assert spin_until(executor, lambda: calls)
+    executor.spin_once(timeout_sec=0.05)
+
+
+def test_a_malformed_string_from_a_peer_is_dropped_with_an_error_not_a_crash(ros_context):
+    node = Node('listener', context=ros_context)
+    string_type = get_message('std_msgs/msg/String')
+    received = []
+    node.create_subscription(string_type, 'text', received.append, 10)
+    publisher = node.create_publisher(string_type, 'text', 10)
+    executor = SingleThreadedExecutor(context=ros_context)
+    executor.add_node(node)
+    assert spin_until(executor, lambda: publisher.get_subscription_count() == 1)
+    publisher.publish(b'\x00\x01\x00\x00\x03\x00\x00\x00\xff\xfe\x00\x00')  # not UTF-8
+    publisher.publish(string_type(data='ok'))
+    assert spin_until(executor, lambda: received and received[-1].data == 'ok')
+    assert received[0].data == '\ufffd\ufffd'  # replaced, as rclpy decodes
+
+
+def test_a_shut_down_context_forgets_its_nodes_and_a_failed_node_leaves_the_graph(ros_context):
+    Node('forgotten', context=ros_context)
+    ros_context.shutdown()
+    ros_context.init(['test'])
+    with pytest.raises(InvalidParameterTypeException, match='use_sim_time'):
+        Node('broken', context=ros_context, cli_args=['--ros-args', '-p', 'use_sim_time:=1'])
+    Node('kept', context=ros_context)
+    assert [entry.name for entry in ros_context._nodes.values()] == ['kept']
+
+
+def test_a_parameter_declared_by_type_has_no_value_until_given_one(ros_context):
+    node = Node('typed', context=ros_context)
+    parameter = node.declare_parameter('gain', Parameter.Type.DOUBLE)
+    assert parameter.type_ == Parameter.Type.NOT_SET and parameter.value is None
+    assert not node.set_parameters([Parameter('gain', value='high')])[0].successful
+    assert node.set_parameters([Parameter('gain', value=2.0)])[0].successful
+    with pytest.raises(ParameterNotDeclaredException):
+        node.set_parameters([Parameter('undeclared', value=1.0)])

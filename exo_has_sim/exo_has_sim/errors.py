@@ -1,0 +1,19 @@
+"""Exceptions of exo_has_sim; every error raised on purpose derives from :class:`SimError`."""
+
+from __future__ import annotations
+
+
+class SimError(Exception):
+    """Base of the errors raised by exo_has_sim."""
+
+
+class ParameterError(SimError, ValueError):
+    """A parameter set that is missing values, malformed, or physically implausible."""
+
+
+class KinematicsError(SimError, ValueError):
+    """A joint angle or cylinder length outside what the linkage can reach."""
+
+
+class SimulationError(SimError, RuntimeError):
+    """A simulation that cannot be run or diverged."""

@@ -1,0 +1,224 @@
+"""The nonlinear HAS model of Sun et al. (2021), Eqs. 2-8, with the effects it leaves out.
+
+One joint's state is ``[x, v, p_A, n, s]`` followed by six cumulative volumes used to check the
+mass balance:
+
+- ``x`` cylinder extension from its retracted end [m], ``v`` its velocity [m/s];
+- ``p_A`` rodless-chamber gauge pressure [Pa]; the rod chamber is open to the elastic tank at
+  atmospheric pressure (paper, section 3.3: p_i = 0), so p_B = 0;
+- ``n`` motor (= pump) speed [rad/s], following the command through a first-order speed loop;
+- ``s`` compact-valve spool position [-]: 1 assist (pump to rodless chamber), 0 free (both
+  chambers to the tank), moved by the pump's pressure once the motor turns (section 2.3.3).
+
+Flow balance of the rodless chamber, the paper's Eq. 10 made dynamic:
+``(V_A + A_A x) / E * dp/dt = s D_p n_p - s (L_n p + L_n2 p|p|) - L_c p - A_e v - Q_relief
+- (1 - s) G_free p`` with ``A_e = (A_A + A_B) / 2``, the flow area of the paper's averaged
+balance (Eq. 10), which makes the linearisation at mid stroke exactly Eq. 12 and the steady
+velocity K n of Eq. 14. Force balance, Eq. 8 with the load force and end stops:
+``(M_a + M_L) dv/dt = A_A p - B v - F_friction - F_load + F_stop``.
+
+A cavitation floor holds ``p_A`` at the cavitation pressure while the balance would take it
+lower (the missing volume is vapour, counted as cavitation volume). The relief valve passes
+``G_r (p - p_set)`` above its setting; the ``relief_valve`` effect adds an opening from a crack
+pressure below it. All functions are compiled with numba and take the packed parameter vector of
+:func:`pack`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from exo_has_sim.parameters import HasParameters
+
+# State layout.
+X, V, PA, N, S = 0, 1, 2, 3, 4
+VOL_PUMP, VOL_LEAK, VOL_RELIEF, VOL_FREE, VOL_COMPRESSION, VOL_CAVITATION = 5, 6, 7, 8, 9, 10
+N_DYNAMIC = 5
+N_STATE = 11
+
+# Packed parameter layout.
+(I_DP, I_NMAX, I_TAU_M, I_LN, I_LC, I_E, I_AA, I_AB, I_AE, I_STROKE, I_V0, I_M, I_B, I_PREL,
+ I_GREL, I_GFREE, I_NENG, I_NREL, I_TAU_S, I_PCAV, I_KSTOP, I_CSTOP, I_FC, I_FS, I_VS, I_VEPS,
+ I_NDZ, I_LN2, I_PCRACK, I_GCRACK, I_AIR) = range(31)
+N_PACKED = 31
+
+ATMOSPHERIC_PRESSURE = 101_325.0  # Pa
+AIR_POLYTROPIC_EXPONENT = 1.4
+
+# Valve modes, numbered as exo_has_msgs/msg/HasState.
+VALVE_FREE, VALVE_ASSIST, VALVE_RELIEF = 0, 1, 2
+
+
+def pack(params: HasParameters) -> np.ndarray:
+    """Return the parameter vector the compiled functions take."""
+    e = params.effects
+    packed = np.empty(N_PACKED)
+    packed[I_DP] = params.pump_displacement
+    packed[I_NMAX] = params.motor_speed_max
+    packed[I_TAU_M] = params.motor_time_constant
+    packed[I_LN] = params.pump_leakage
+    packed[I_LC] = params.cylinder_leakage
+    packed[I_E] = params.bulk_modulus
+    packed[I_AA] = params.area_a
+    packed[I_AB] = params.area_b
+    packed[I_AE] = params.flow_area
+    packed[I_STROKE] = params.stroke
+    packed[I_V0] = params.dead_volume
+    packed[I_M] = params.moving_mass
+    packed[I_B] = params.damping
+    packed[I_PREL] = params.relief_pressure
+    packed[I_GREL] = params.relief_conductance
+    packed[I_GFREE] = params.free_conductance
+    packed[I_NENG] = params.valve_engage_speed
+    packed[I_NREL] = params.valve_release_speed
+    packed[I_TAU_S] = params.valve_time_constant
+    packed[I_PCAV] = params.cavitation_pressure
+    packed[I_KSTOP] = params.end_stop_stiffness
+    packed[I_CSTOP] = params.end_stop_damping
+    packed[I_FC] = e.coulomb_friction
+    packed[I_FS] = e.stribeck_friction
+    packed[I_VS] = e.stribeck_velocity
+    packed[I_VEPS] = e.friction_smoothing_velocity
+    packed[I_NDZ] = e.pump_deadzone
+    packed[I_LN2] = e.quadratic_leakage
+    packed[I_PCRACK] = e.relief_crack_pressure
+    packed[I_GCRACK] = e.relief_crack_conductance
+    packed[I_AIR] = e.entrained_air
+    return packed
+
+
+@njit(cache=True)
+def effective_bulk_modulus(p: float, prm: np.ndarray) -> float:
+    """Bulk modulus of oil with entrained air at gauge pressure p [Pa] (air effect)."""
+    air = prm[I_AIR]
+    if air <= 0.0:
+        return prm[I_E]
+    p_abs = max(p + ATMOSPHERIC_PRESSURE, 1.0e3)
+    kappa = AIR_POLYTROPIC_EXPONENT
+    ratio = (ATMOSPHERIC_PRESSURE / p_abs) ** (1.0 / kappa)
+    return prm[I_E] / (1.0 + air * ratio * (prm[I_E] / (kappa * p_abs) - 1.0))
+
+
+@njit(cache=True)
+def friction_force(v: float, prm: np.ndarray) -> float:
+    """Seal friction [N], opposing v: Coulomb plus Stribeck peak, tanh-smoothed."""
+    if prm[I_FC] <= 0.0:
+        return 0.0
+    level = prm[I_FC] + prm[I_FS] * math.exp(-(v / prm[I_VS]) ** 2)
+    return level * math.tanh(v / prm[I_VEPS])
+
+
+@njit(cache=True)
+def pump_speed(n: float, prm: np.ndarray) -> float:
+    """Speed at which the pump delivers to the cylinder [rad/s] (dead-zone effect)."""
+    dz = prm[I_NDZ]
+    if dz <= 0.0:
+        return n
+    if n > dz:
+        return n - dz
+    if n < -dz:
+        return n + dz
+    return 0.0
+
+
+@njit(cache=True)
+def relief_flow(p: float, prm: np.ndarray) -> float:
+    """Flow through the safety valve to the tank [m^3/s]."""
+    flow = prm[I_GREL] * max(p - prm[I_PREL], 0.0)
+    if prm[I_PCRACK] > 0.0:
+        flow += prm[I_GCRACK] * max(min(p, prm[I_PREL]) - prm[I_PCRACK], 0.0)
+    return flow
+
+
+@njit(cache=True)
+def spool_target(n: float, prm: np.ndarray) -> float:
+    """Spool position the pump's pressure drives the compact valve to, at motor speed n."""
+    span = prm[I_NENG] - prm[I_NREL]
+    z = min(max((abs(n) - prm[I_NREL]) / span, 0.0), 1.0)
+    return z * z * (3.0 - 2.0 * z)
+
+
+@njit(cache=True)
+def rhs(y: np.ndarray, n_cmd: float, f_load: float, prm: np.ndarray,
+        dy: np.ndarray) -> None:
+    """Write dy/dt of one joint's state into ``dy``.
+
+    Parameters
+    ----------
+    y : np.ndarray
+        State (length N_STATE).
+    n_cmd : float
+        Motor speed command reaching the drive [rad/s] (after any transport delay).
+    f_load : float
+        External load force on the rod [N], positive pushing the cylinder to retract.
+    prm : np.ndarray
+        Packed parameters (:func:`pack`).
+    dy : np.ndarray
+        Output, length N_STATE.
+
+    """
+    x, v, p, n, s = y[X], y[V], y[PA], y[N], y[S]
+    stroke = prm[I_STROKE]
+    volume = prm[I_V0] + prm[I_AA] * min(max(x, 0.0), stroke)
+    capacitance = volume / effective_bulk_modulus(p, prm)
+    q_pump = s * prm[I_DP] * pump_speed(n, prm)
+    q_leak = s * (prm[I_LN] * p + prm[I_LN2] * p * abs(p)) + prm[I_LC] * p
+    q_relief = relief_flow(p, prm)
+    q_free = (1.0 - s) * prm[I_GFREE] * p
+    q_motion = prm[I_AE] * v
+    dp = (q_pump - q_leak - q_relief - q_free - q_motion) / capacitance
+    q_cavitation = 0.0
+    if p <= prm[I_PCAV] and dp < 0.0:
+        q_cavitation = -dp * capacitance
+        dp = 0.0
+    force_stop = 0.0
+    if x < 0.0:
+        force_stop = max(-prm[I_KSTOP] * x - prm[I_CSTOP] * v, 0.0)
+    elif x > stroke:
+        force_stop = min(-prm[I_KSTOP] * (x - stroke) - prm[I_CSTOP] * v, 0.0)
+    force = prm[I_AA] * p - prm[I_B] * v - friction_force(v, prm) - f_load + force_stop
+    command = min(max(n_cmd, -prm[I_NMAX]), prm[I_NMAX])
+    dy[X] = v
+    dy[V] = force / prm[I_M]
+    dy[PA] = dp
+    dy[N] = (command - n) / prm[I_TAU_M]
+    dy[S] = (spool_target(n, prm) - s) / prm[I_TAU_S]
+    dy[VOL_PUMP] = q_pump
+    dy[VOL_LEAK] = q_leak
+    dy[VOL_RELIEF] = q_relief
+    dy[VOL_FREE] = q_free
+    dy[VOL_COMPRESSION] = capacitance * dp
+    dy[VOL_CAVITATION] = q_cavitation
+
+
+@njit(cache=True)
+def valve_mode(y: np.ndarray, prm: np.ndarray) -> int:
+    """Valve mode of a state: relief when the safety valve passes flow, else assist or free."""
+    if relief_flow(y[PA], prm) > 0.0:
+        return VALVE_RELIEF
+    return VALVE_ASSIST if y[S] >= 0.5 else VALVE_FREE
+
+
+def initial_state(params: HasParameters, position: float, load_force: float = 0.0,
+                  assist: bool = True) -> np.ndarray:
+    """Return a state at rest at ``position`` [m] holding ``load_force`` [N].
+
+    In assist the pressure carries the load and the motor turns just fast enough to replace the
+    leakage; in free mode the pressure is zero (the load is then not held).
+    """
+    y = np.zeros(N_STATE)
+    y[X] = position
+    if assist:
+        pressure = max(load_force / params.area_a, params.cavitation_pressure)
+        leak = params.pump_leakage * pressure + params.cylinder_leakage * pressure \
+            + params.effects.quadratic_leakage * pressure * abs(pressure)
+        speed = leak / params.pump_displacement
+        dz = params.effects.pump_deadzone
+        speed += math.copysign(dz, speed) if dz and speed else 0.0
+        y[PA] = pressure
+        y[N] = speed
+        y[S] = 1.0
+    return y

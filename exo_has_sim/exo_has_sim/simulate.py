@@ -1,0 +1,351 @@
+"""Fast fixed-step simulation of N HAS joints, open or closed loop.
+
+The pressure dynamics are stiff (the relief and free-mode passages discharge the chamber in
+about 0.1 ms, the end stops ring at 100 Hz), so an explicit method would need steps of a few
+microseconds. The integrator is the two-stage, second-order, L-stable Rosenbrock method ROS2
+(Verwer, Spee, Blom, Hundsdorfer 1999), linearly implicit (no Newton iterations), with a
+finite-difference Jacobian of the five dynamic states and an in-place 5x5 solve, compiled with
+numba. The step size is controlled with the method's embedded first-order solution: a fixed
+1 ms step overshoots by tens of MPa where the relief valve opens within a step, and a fixed step
+small enough everywhere costs several times more. Held inputs change only at interval
+boundaries (sample instants, and those shifted by a transport delay), where steps are cut.
+The six cumulative-volume states are carried through the same stages, so the mass balance
+holds to rounding. Measured against solve_ivp (Radau) in the tests and bench/.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from exo_has_sim import model
+from exo_has_sim.errors import SimulationError
+from exo_has_sim.parameters import HasParameters
+
+GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
+#: Default largest integration step [s].
+DEFAULT_STEP = 2.0e-3
+#: Default relative tolerance of the step-size control.
+DEFAULT_RTOL = 1.0e-4
+# Typical size of each dynamic state (m, m/s, Pa, rad/s, -): finite-difference increments and
+# absolute tolerances are fractions of it.
+_FD_SCALE = np.array([1e-3, 1e-3, 1e5, 1.0, 1e-3])
+_ATOL = np.array([1e-7, 1e-5, 1e3, 1e-2, 1e-4])
+
+
+@njit(cache=True)
+def _solve5(a: np.ndarray, b: np.ndarray) -> None:
+    """Solve a x = b in place for a 5x5 system (b becomes x; a is destroyed)."""
+    n = 5
+    for col in range(n):
+        pivot = col
+        for row in range(col + 1, n):
+            if abs(a[row, col]) > abs(a[pivot, col]):
+                pivot = row
+        if pivot != col:
+            for k in range(n):
+                a[col, k], a[pivot, k] = a[pivot, k], a[col, k]
+            b[col], b[pivot] = b[pivot], b[col]
+        inv = 1.0 / a[col, col]
+        for row in range(col + 1, n):
+            factor = a[row, col] * inv
+            if factor != 0.0:
+                for k in range(col, n):
+                    a[row, k] -= factor * a[col, k]
+                b[row] -= factor * b[col]
+    for row in range(n - 1, -1, -1):
+        acc = b[row]
+        for k in range(row + 1, n):
+            acc -= a[row, k] * b[k]
+        b[row] = acc / a[row, row]
+
+
+# Work arrays of one integration: rows of ``work`` (length N_STATE each) and the matrices.
+_F0, _FP, _YP, _K1, _K2, _YN = range(6)
+
+
+@njit(cache=True)
+def _ros2_trial(y: np.ndarray, h: float, n_cmd: float, f_load: float, prm: np.ndarray,
+                scale: np.ndarray, work: np.ndarray, jac: np.ndarray, mat: np.ndarray,
+                lu: np.ndarray, atol: np.ndarray, rtol: float) -> float:
+    """One ROS2 step of length h from y into work[_YN]; return the scaled error estimate."""
+    ns = y.shape[0]
+    nd = 5
+    f0, fp, yp, k1, k2, yn = work[_F0], work[_FP], work[_YP], work[_K1], work[_K2], work[_YN]
+    model.rhs(y, n_cmd, f_load, prm, f0)
+    for i in range(ns):
+        yp[i] = y[i]
+    for j in range(nd):
+        delta = 1e-7 * max(abs(y[j]), scale[j])
+        yp[j] = y[j] + delta
+        model.rhs(yp, n_cmd, f_load, prm, fp)
+        for i in range(ns):
+            jac[i, j] = (fp[i] - f0[i]) / delta
+        yp[j] = y[j]
+    gh = GAMMA * h
+    for i in range(nd):
+        for k in range(nd):
+            mat[i, k] = -gh * jac[i, k]
+        mat[i, i] += 1.0
+    for i in range(nd):
+        k1[i] = f0[i]
+        for k in range(nd):
+            lu[i, k] = mat[i, k]
+    _solve5(lu, k1[:nd])
+    for i in range(nd, ns):
+        acc = f0[i]
+        for k in range(nd):
+            acc += gh * jac[i, k] * k1[k]
+        k1[i] = acc
+    for i in range(ns):
+        yp[i] = y[i] + h * k1[i]
+    model.rhs(yp, n_cmd, f_load, prm, fp)
+    for i in range(nd):
+        k2[i] = fp[i] - 2.0 * k1[i]
+        for k in range(nd):
+            lu[i, k] = mat[i, k]
+    _solve5(lu, k2[:nd])
+    for i in range(nd, ns):
+        acc = fp[i] - 2.0 * k1[i]
+        for k in range(nd):
+            acc += gh * jac[i, k] * k2[k]
+        k2[i] = acc
+    error = 0.0
+    for i in range(ns):
+        yn[i] = y[i] + 1.5 * h * k1[i] + 0.5 * h * k2[i]
+    for i in range(nd):
+        # Difference to the embedded first-order solution y + h k1.
+        local = abs(0.5 * h * (k1[i] + k2[i])) / (atol[i] + rtol * abs(yn[i]))
+        error = max(error, local)
+    return error
+
+
+@njit(cache=True)
+def _advance(y: np.ndarray, span: float, step: np.ndarray, n_cmd: float, f_load: float,
+             prm: np.ndarray, scale: np.ndarray, work: np.ndarray, jac: np.ndarray,
+             mat: np.ndarray, lu: np.ndarray, atol: np.ndarray, rtol: float,
+             max_step: float) -> int:
+    """Integrate y over ``span`` seconds with adaptive ROS2 steps; return the steps taken.
+
+    ``step[0]`` carries the step size from one call to the next.
+    """
+    t = 0.0
+    h = min(step[0], max_step)
+    taken = 0
+    while t < span * (1.0 - 1e-12):
+        last = t + h >= span
+        trial = span - t if last else h
+        error = _ros2_trial(y, trial, n_cmd, f_load, prm, scale, work, jac, mat, lu, atol,
+                            rtol)
+        if error <= 1.0 or trial < 1e-9:
+            for i in range(y.shape[0]):
+                y[i] = work[_YN, i]
+            t += trial
+            taken += 1
+            grow = 0.9 / math.sqrt(max(error, 1e-10))
+            if not last:
+                h = min(trial * min(2.0, max(0.5, grow)), max_step)
+        else:
+            h = trial * max(0.2, 0.9 / math.sqrt(error))
+    step[0] = h
+    return taken
+
+
+@njit(cache=True)
+def _open_loop(y0: np.ndarray, prm: np.ndarray, n_cmd: np.ndarray, f_load: np.ndarray,
+               period: float, delay: np.ndarray, scale: np.ndarray, atol: np.ndarray,
+               rtol: float, max_step: float, out: np.ndarray) -> int:
+    joints, ns = y0.shape
+    samples = n_cmd.shape[0]
+    y = y0.copy()
+    out[0] = y
+    work = np.empty((6, ns))
+    jac = np.empty((ns, 5))
+    mat = np.empty((5, 5))
+    lu = np.empty((5, 5))
+    taken = 0
+    for j in range(joints):
+        step = np.array([max_step])
+        # A delayed command changes once inside each period, ``shift`` after its start.
+        lag = math.floor(delay[j] / period + 1e-9)
+        shift = delay[j] - lag * period
+        for k in range(samples):
+            first = k - lag - 1
+            second = k - lag
+            c1 = n_cmd[first, j] if first >= 0 else y0[j, model.N]
+            c2 = n_cmd[second, j] if second >= 0 else y0[j, model.N]
+            if shift > 1e-12:
+                taken += _advance(y[j], shift, step, c1, f_load[k, j], prm[j], scale, work,
+                                  jac, mat, lu, atol, rtol, max_step)
+            taken += _advance(y[j], period - shift, step, c2, f_load[k, j], prm[j], scale,
+                              work, jac, mat, lu, atol, rtol, max_step)
+            out[k + 1, j] = y[j]
+    return taken
+
+
+@njit(cache=True)
+def _closed_loop(y0: np.ndarray, prm: np.ndarray, x_ref: np.ndarray, v_ref: np.ndarray,
+                 f_load: np.ndarray, gains: np.ndarray, period: float,
+                 delay_samples: np.ndarray, scale: np.ndarray, atol: np.ndarray, rtol: float,
+                 max_step: float, out: np.ndarray, commands: np.ndarray) -> int:
+    joints, ns = y0.shape
+    samples = x_ref.shape[0]
+    y = y0.copy()
+    out[0] = y
+    work = np.empty((6, ns))
+    jac = np.empty((ns, 5))
+    mat = np.empty((5, 5))
+    lu = np.empty((5, 5))
+    taken = 0
+    for j in range(joints):
+        step = np.array([max_step])
+        previous = y[j, model.X]
+        limit = prm[j, model.I_NMAX]
+        for k in range(samples):
+            measured = y[j, model.X]
+            velocity = (measured - previous) / period if k > 0 else 0.0
+            previous = measured
+            command = gains[j, 2] * v_ref[k, j] + gains[j, 0] * (x_ref[k, j] - measured) \
+                + gains[j, 1] * (v_ref[k, j] - velocity)
+            commands[k, j] = min(max(command, -limit), limit)
+            index = k - delay_samples[j]
+            applied = commands[index, j] if index >= 0 else y0[j, model.N]
+            taken += _advance(y[j], period, step, applied, f_load[k, j], prm[j], scale, work,
+                              jac, mat, lu, atol, rtol, max_step)
+            out[k + 1, j] = y[j]
+    return taken
+
+
+@dataclass(frozen=True)
+class SimulationResult:
+    """States of N joints at the sample times.
+
+    Attributes
+    ----------
+    time : np.ndarray
+        Sample times [s], shape (K + 1,), starting at 0.
+    states : np.ndarray
+        States, shape (K + 1, N, N_STATE) (layout in :mod:`exo_has_sim.model`).
+    commands : np.ndarray
+        Motor speed commands issued at each sample [rad/s], shape (K, N).
+
+    """
+
+    time: np.ndarray
+    states: np.ndarray
+    commands: np.ndarray
+
+    @property
+    def position(self) -> np.ndarray:
+        """Cylinder extension [m], shape (K + 1, N)."""
+        return self.states[:, :, model.X]
+
+    @property
+    def pressure(self) -> np.ndarray:
+        """Rodless chamber pressure [Pa], shape (K + 1, N)."""
+        return self.states[:, :, model.PA]
+
+
+def _packed(params: Sequence[HasParameters]) -> np.ndarray:
+    return np.stack([model.pack(p) for p in params])
+
+
+def _check_steps(period: float, max_step: float, rtol: float) -> None:
+    if not period > 0.0 or not max_step > 0.0 or not 0.0 < rtol < 1.0:
+        msg = (f'sample period {period} s and largest step {max_step} s must be positive and '
+               f'rtol {rtol} within (0, 1)')
+        raise SimulationError(msg)
+
+
+def _as_2d(values: np.ndarray, joints: int, name: str) -> np.ndarray:
+    array = np.asarray(values, dtype=float)
+    if array.ndim == 1:
+        array = array[:, None] * np.ones(joints)
+    if array.ndim != 2 or array.shape[1] != joints:
+        msg = f'{name} must have shape (samples, {joints}), got {array.shape}'
+        raise SimulationError(msg)
+    if not np.all(np.isfinite(array)):
+        msg = f'{name} holds NaN or infinite values'
+        raise SimulationError(msg)
+    return np.ascontiguousarray(array)
+
+
+def simulate_open_loop(params: Sequence[HasParameters], y0: np.ndarray, n_cmd: np.ndarray,
+                       f_load: np.ndarray, period: float, max_step: float = DEFAULT_STEP,
+                       rtol: float = DEFAULT_RTOL) -> SimulationResult:
+    """Simulate N joints driven by sampled (zero-order-hold) commands.
+
+    Parameters
+    ----------
+    params : Sequence[HasParameters]
+        One parameter set per joint.
+    y0 : np.ndarray
+        Initial states, shape (N, N_STATE).
+    n_cmd : np.ndarray
+        Motor speed commands [rad/s], shape (K, N), held for one period each; a joint's
+        transport delay shifts them in time exactly (to the integration step).
+    f_load : np.ndarray
+        Load forces [N], shape (K, N) or (K,), held likewise (not delayed).
+    period : float
+        Sample period [s].
+    max_step : float
+        Largest integration step [s].
+    rtol : float
+        Relative tolerance of the step-size control.
+
+    """
+    joints = len(params)
+    commands = _as_2d(n_cmd, joints, 'n_cmd')
+    loads = _as_2d(f_load, joints, 'f_load')
+    if loads.shape[0] != commands.shape[0]:
+        raise SimulationError('n_cmd and f_load must have the same number of samples')
+    _check_steps(period, max_step, rtol)
+    states = np.empty((commands.shape[0] + 1, joints, model.N_STATE))
+    delay = np.array([p.effects.transport_delay for p in params])
+    _open_loop(np.ascontiguousarray(y0, dtype=float), _packed(params), commands, loads, period,
+               delay, _FD_SCALE, _ATOL, rtol, max_step, states)
+    if not np.all(np.isfinite(states)):
+        raise SimulationError('the simulation diverged (NaN or infinite state)')
+    time = np.arange(commands.shape[0] + 1) * period
+    return SimulationResult(time, states, commands)
+
+
+def simulate_closed_loop(params: Sequence[HasParameters], y0: np.ndarray, x_ref: np.ndarray,
+                         v_ref: np.ndarray, f_load: np.ndarray, gains: np.ndarray,
+                         period: float, max_step: float = DEFAULT_STEP,
+                         rtol: float = DEFAULT_RTOL) -> SimulationResult:
+    """Simulate N joints under sampled PD position control of the cylinders.
+
+    The controller samples the position every ``period`` and commands
+    ``kff v_ref + kp (x_ref - x) + kd (v_ref - dx/dt)`` (dx/dt by backward difference of the
+    samples), saturated at the motor's top speed; a joint's transport delay holds its commands
+    back by whole periods.
+
+    Parameters
+    ----------
+    gains : np.ndarray
+        Per joint ``[kp, kd, kff]``: kp [rad/s per m], kd [rad/s per (m/s)], kff [rad/s per
+        (m/s)], shape (N, 3).
+
+    """
+    joints = len(params)
+    refs = _as_2d(x_ref, joints, 'x_ref')
+    vels = _as_2d(v_ref, joints, 'v_ref')
+    loads = _as_2d(f_load, joints, 'f_load')
+    samples = refs.shape[0]
+    if vels.shape[0] != samples or loads.shape[0] != samples:
+        raise SimulationError('x_ref, v_ref and f_load must have the same number of samples')
+    gain_array = np.ascontiguousarray(np.broadcast_to(np.asarray(gains, float), (joints, 3)))
+    delay = np.array([round(p.effects.transport_delay / period) for p in params], dtype=np.int64)
+    _check_steps(period, max_step, rtol)
+    states = np.empty((samples + 1, joints, model.N_STATE))
+    commands = np.empty((samples, joints))
+    _closed_loop(np.ascontiguousarray(y0, dtype=float), _packed(params), refs, vels, loads,
+                 gain_array, period, delay, _FD_SCALE, _ATOL, rtol, max_step, states, commands)
+    if not np.all(np.isfinite(states)):
+        raise SimulationError('the simulation diverged (NaN or infinite state)')
+    return SimulationResult(np.arange(samples + 1) * period, states, commands)
