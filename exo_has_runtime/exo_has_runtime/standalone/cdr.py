@@ -205,7 +205,7 @@ class _Generator:
         if kind == Nodetype.BASE:
             return [f'{indent}p += -(p - 4) & 3',
                     f'{indent}(n,) = unpack_u32(d, p)',
-                    f'{indent}{target} = d[p + 4:p + 3 + n].decode()',
+                    f'{indent}{target} = d[p + 4:p + 3 + n].decode(errors="replace")',
                     f'{indent}p += 4 + n']
         (sub_kind, sub_arg), count = arg
         out: list[str] = []

@@ -133,7 +133,7 @@ class Subscription:
                 continue
             try:
                 messages.append(deserialize(data))
-            except (ValueError, IndexError, struct.error) as exc:
+            except (ValueError, IndexError, struct.error) as exc:  # UnicodeError is a ValueError
                 # A malformed sample from a peer must not take the node down.
                 self._node.get_logger().error(
                     f'dropped a malformed {self.msg_type.__ros_type__} on {self.topic_name}: '
