@@ -13,6 +13,8 @@ setup(
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*.yaml')),
     ],
+    package_data={package_name: ['data/*.csv', 'data/README.md']},
+    include_package_data=True,
     install_requires=['setuptools'],
     zip_safe=True,
     maintainer='exo_has developers',
@@ -25,5 +27,8 @@ setup(
     tests_require=['pytest'],
     entry_points={
         'console_scripts': [],
+        'exo_has.commands': [
+            'design-check = exo_has_sim.design_check:main',
+        ],
     },
 )

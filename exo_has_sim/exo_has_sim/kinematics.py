@@ -96,7 +96,7 @@ class Linkage:
         if np.any(np.abs(cos_psi) > 1.0):
             msg = 'cylinder extension outside what the linkage can reach'
             raise KinematicsError(msg)
-        return np.arccos(cos_psi) - self.psi_offset
+        return np.asarray(np.arccos(cos_psi) - self.psi_offset, dtype=float)
 
     def lever_arm(self, angle: ArrayLike) -> FloatArray:
         """Moment arm of the cylinder force about the joint, -d(ab)/d(theta) [m]."""
@@ -105,7 +105,8 @@ class Linkage:
 
     def velocity(self, angle: ArrayLike, angular_velocity: ArrayLike) -> FloatArray:
         """Cylinder velocity [m/s] for a joint angular velocity [rad/s] (the Jacobian)."""
-        return -self.lever_arm(angle) * np.asarray(angular_velocity, dtype=float)
+        rate: FloatArray = np.asarray(angular_velocity, dtype=float)
+        return -self.lever_arm(angle) * rate
 
     def joint_torque(self, force: ArrayLike, angle: ArrayLike) -> FloatArray:
         """Joint torque [N m], positive in flexion, of a cylinder force [N] (pushing positive).

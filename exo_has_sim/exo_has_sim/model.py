@@ -95,11 +95,11 @@ def effective_bulk_modulus(p: float, prm: np.ndarray) -> float:
     """Bulk modulus of oil with entrained air at gauge pressure p [Pa] (air effect)."""
     air = prm[I_AIR]
     if air <= 0.0:
-        return prm[I_E]
+        return float(prm[I_E])
     p_abs = max(p + ATMOSPHERIC_PRESSURE, 1.0e3)
     kappa = AIR_POLYTROPIC_EXPONENT
     ratio = (ATMOSPHERIC_PRESSURE / p_abs) ** (1.0 / kappa)
-    return prm[I_E] / (1.0 + air * ratio * (prm[I_E] / (kappa * p_abs) - 1.0))
+    return float(prm[I_E] / (1.0 + air * ratio * (prm[I_E] / (kappa * p_abs) - 1.0)))
 
 
 @njit(cache=True)
@@ -108,7 +108,7 @@ def friction_force(v: float, prm: np.ndarray) -> float:
     if prm[I_FC] <= 0.0:
         return 0.0
     level = prm[I_FC] + prm[I_FS] * math.exp(-(v / prm[I_VS]) ** 2)
-    return level * math.tanh(v / prm[I_VEPS])
+    return float(level * math.tanh(v / prm[I_VEPS]))
 
 
 @njit(cache=True)
@@ -116,11 +116,11 @@ def pump_speed(n: float, prm: np.ndarray) -> float:
     """Speed at which the pump delivers to the cylinder [rad/s] (dead-zone effect)."""
     dz = prm[I_NDZ]
     if dz <= 0.0:
-        return n
+        return float(n)
     if n > dz:
-        return n - dz
+        return float(n - dz)
     if n < -dz:
-        return n + dz
+        return float(n + dz)
     return 0.0
 
 
@@ -130,7 +130,7 @@ def relief_flow(p: float, prm: np.ndarray) -> float:
     flow = prm[I_GREL] * max(p - prm[I_PREL], 0.0)
     if prm[I_PCRACK] > 0.0:
         flow += prm[I_GCRACK] * max(min(p, prm[I_PREL]) - prm[I_PCRACK], 0.0)
-    return flow
+    return float(flow)
 
 
 @njit(cache=True)
@@ -138,7 +138,7 @@ def spool_target(n: float, prm: np.ndarray) -> float:
     """Spool position the pump's pressure drives the compact valve to, at motor speed n."""
     span = prm[I_NENG] - prm[I_NREL]
     z = min(max((abs(n) - prm[I_NREL]) / span, 0.0), 1.0)
-    return z * z * (3.0 - 2.0 * z)
+    return float(z * z * (3.0 - 2.0 * z))
 
 
 @njit(cache=True)

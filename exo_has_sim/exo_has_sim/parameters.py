@@ -312,7 +312,7 @@ def load_parameters(source: str | Path) -> HasParameters:
     """
     path = CONFIG_DIR / f'{source}.yaml' if source in JOINT_TYPES else Path(source)
     try:
-        document = load_yaml(path.read_text(encoding='utf-8'))
+        document: Any = load_yaml(path.read_text(encoding='utf-8'))
     except OSError as exc:
         msg = f'cannot read parameters file {path}: {exc.strerror}'
         raise ParameterError(msg) from exc

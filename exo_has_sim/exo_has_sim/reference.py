@@ -66,7 +66,7 @@ def simulate_reference(params: HasParameters, y0: np.ndarray, n_cmd: np.ndarray,
 
         def fun(_t: float, state: np.ndarray, c: float = command, f: float = load) -> np.ndarray:
             model.rhs(state, c, f, prm, derivative)
-            return derivative.copy()
+            return np.array(derivative)
 
         solution = solve_ivp(fun, (t0, t1), y, method=method, rtol=rtol, atol=_ATOL)
         if not solution.success:

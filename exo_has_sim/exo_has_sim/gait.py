@@ -1,0 +1,129 @@
+"""Normative gait data: loading gait-cycle tables of hip and knee angles.
+
+The shipped table is Winter's normal-cadence adult ensemble average (see data/README.md); any
+CSV of the same shape can be loaded: a header row naming the columns ``cycle_percent``,
+``hip_angle`` and ``knee_angle`` (degrees, flexion positive), or Winter's layout as shipped.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from exo_has_sim.errors import ParameterError
+
+DATA_DIR = Path(__file__).resolve().parent / 'data'
+WINTER = DATA_DIR / 'winter1991_normal_cadence.csv'
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class GaitCycle:
+    """Joint angles over one gait cycle from heel contact.
+
+    Attributes
+    ----------
+    cycle_percent : np.ndarray
+        Gait cycle [%], increasing from 0 to 100.
+    hip_angle, knee_angle : np.ndarray
+        Flexion angles [rad].
+    source : str
+        Where the data came from.
+
+    """
+
+    cycle_percent: FloatArray
+    hip_angle: FloatArray
+    knee_angle: FloatArray
+    source: str
+
+    def angles_at(self, phase: NDArray[np.float64] | float) -> tuple[FloatArray, FloatArray]:
+        """Hip and knee angles [rad] at gait phase(s) in cycles (wrapped to [0, 1))."""
+        percent = (np.asarray(phase, dtype=float) % 1.0) * 100.0
+        hip = np.interp(percent, self.cycle_percent, self.hip_angle, period=100.0)
+        knee = np.interp(percent, self.cycle_percent, self.knee_angle, period=100.0)
+        return hip, knee
+
+
+def load_gait_cycle(path: str | Path = WINTER) -> GaitCycle:
+    """Load a gait-cycle table.
+
+    Raises
+    ------
+    ParameterError
+        If the file is missing, has no recognisable columns, non-numeric or non-finite values,
+        a cycle that is not increasing over 0 to 100 %, or angles that look like radians.
+
+    """
+    source = Path(path)
+    try:
+        with source.open(encoding='utf-8-sig', newline='') as handle:
+            rows = list(csv.reader(handle))
+    except OSError as exc:
+        msg = f'cannot read gait table {source}: {exc.strerror}'
+        raise ParameterError(msg) from exc
+    columns = _find_columns(rows, source)
+    header_index, cycle_col, hip_col, knee_col = columns
+    values: list[tuple[float, float, float]] = []
+    for number, row in enumerate(rows[header_index + 1:], start=header_index + 2):
+        cells = [c.strip() for c in row]
+        if not any(cells) or len(cells) <= max(cycle_col, hip_col, knee_col):
+            continue
+        if not cells[cycle_col] or not _is_number(cells[cycle_col]):
+            continue  # a units row or a trailing note
+        try:
+            triple = (float(cells[cycle_col]), float(cells[hip_col]), float(cells[knee_col]))
+        except ValueError as exc:
+            msg = f'{source}:{number}: not a number: {exc}'
+            raise ParameterError(msg) from exc
+        if not all(math.isfinite(v) for v in triple):
+            msg = f'{source}:{number}: NaN or infinite value'
+            raise ParameterError(msg)
+        values.append(triple)
+    if len(values) < 5:
+        msg = f'{source}: fewer than 5 rows of data'
+        raise ParameterError(msg)
+    data = np.array(values)
+    cycle = data[:, 0]
+    if np.any(np.diff(cycle) <= 0) or cycle[0] < 0 or cycle[-1] > 100 + 1e-9:
+        msg = f'{source}: the gait cycle column must increase within 0 to 100 %'
+        raise ParameterError(msg)
+    if np.max(np.abs(data[:, 1:])) < 3.0:
+        msg = f'{source}: angles span less than 3 units: they look like radians; give degrees'
+        raise ParameterError(msg)
+    return GaitCycle(cycle, np.radians(data[:, 1]), np.radians(data[:, 2]), str(source))
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _find_columns(rows: list[list[str]], source: Path) -> tuple[int, int, int, int]:
+    aliases = {
+        'cycle': ('cycle_percent', '%gait cycle', 'gait_cycle', 'percent'),
+        'hip': ('hip_angle', 'hip angle'),
+        'knee': ('knee_angle', 'knee angle'),
+    }
+    for index, row in enumerate(rows):
+        names = [cell.strip().lower() for cell in row]
+        found = {}
+        for key, options in aliases.items():
+            for col, name in enumerate(names):
+                if name in options:
+                    found[key] = col
+                    break
+        if len(found) == 3:
+            return index, found['cycle'], found['hip'], found['knee']
+    msg = (f'{source}: no header row with columns cycle_percent, hip_angle and knee_angle '
+           '(degrees)')
+    raise ParameterError(msg)

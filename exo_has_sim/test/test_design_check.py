@@ -1,0 +1,36 @@
+import json
+
+import pytest
+
+from exo_has_sim.design_check import design_check, main
+from exo_has_sim.parameters import load_parameters
+
+
+def test_the_table_reproduces_the_papers_figures_and_names_the_discrepancies():
+    rows = {row.id: row for row in design_check(load_parameters('hip'))}
+    assert rows['no_load_speed'].model >= 0.14
+    assert rows['pressure_for_peak_thrust'].model < 18e6
+    assert rows['torque_at_max_pressure'].model <= 1.8
+    assert rows['walking_stroke'].model == pytest.approx(0.058, rel=0.02)
+    assert rows['bandwidth_model'].model == pytest.approx(2.54, rel=0.2)
+    assert rows['bandwidth_eq15'].model > 4 * 2.54  # Eq. 15 with P = 35 is far too fast
+    assert 'not in the units of Eq. 15' in rows['bandwidth_eq15'].finding
+    assert 'device units' in rows['velocity_gain'].finding
+    assert 'cannot identify a hydraulic resonance' in rows['natural_frequency'].finding
+
+
+def test_the_command_prints_the_table_and_writes_json(tmp_path, capsys):
+    out = tmp_path / 'check.json'
+    assert main(['--joint', 'knee', '--json', str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert 'bandwidth_model' in printed and f'wrote {out}' in printed
+    document = json.loads(out.read_text())
+    assert document['joint_type'] == 'knee'
+    assert {'id', 'quantity', 'unit', 'paper', 'model', 'finding'} <= set(document['rows'][0])
+
+
+def test_a_bad_parameters_file_is_reported_not_raised(tmp_path, capsys):
+    path = tmp_path / 'bad.yaml'
+    path.write_text('not: [a, params, file]\n')
+    assert main(['--params', str(path)]) == 1
+    assert 'expected /**: ros__parameters: has' in capsys.readouterr().err

@@ -1,0 +1,175 @@
+"""The nonlinear model's physics: steady states, valve modes, mass balance, effect signatures."""
+
+import math
+
+import numpy as np
+import pytest
+
+from exo_has_sim import linear, model
+from exo_has_sim.parameters import load_parameters
+from exo_has_sim.reference import simulate_reference
+from exo_has_sim.simulate import simulate_closed_loop, simulate_open_loop
+
+HIP = load_parameters('hip')
+LOAD = 50.0 * 9.81  # the paper's 50 kg on a vertical rig [N]
+
+
+def run(params, y0, command, load, duration, period=0.001):
+    samples = round(duration / period)
+    commands = np.broadcast_to(np.asarray(command, float), (samples,)).copy()
+    loads = np.broadcast_to(np.asarray(load, float), (samples,)).copy()
+    return simulate_open_loop([params], y0[None, :], commands[:, None], loads, period)
+
+
+def test_the_steady_extension_velocity_is_k_times_the_pump_speed():
+    speed = 200.0
+    y0 = model.initial_state(HIP, 0.02)
+    result = run(HIP, y0, speed, 0.0, 0.4)
+    velocity = result.states[-1, 0, model.V]
+    assert velocity == pytest.approx(linear.velocity_gain(HIP) * speed, rel=0.01)
+    assert model.valve_mode(result.states[-1, 0], model.pack(HIP)) == model.VALVE_ASSIST
+
+
+def test_a_blocked_cylinder_settles_at_the_relief_setting():
+    y0 = model.initial_state(HIP, HIP.stroke - 0.002, LOAD)
+    result = run(HIP, y0, HIP.motor_speed_max, LOAD, 1.0)
+    final = result.states[-1, 0]
+    assert final[model.PA] == pytest.approx(HIP.relief_pressure, rel=0.02)
+    assert final[model.PA] >= HIP.relief_pressure
+    assert abs(final[model.V]) < 1e-4
+    assert model.valve_mode(final, model.pack(HIP)) == model.VALVE_RELIEF
+
+
+def test_with_the_motor_stopped_the_external_force_moves_the_cylinder():
+    free = model.initial_state(HIP, 0.08, LOAD, assist=False)
+    moved = run(HIP, free, 0.0, 300.0, 0.1).states
+    assert moved[-1, 0, model.X] - 0.08 < -0.005  # free mode: the load pushes it in
+    assert model.valve_mode(moved[-1, 0], model.pack(HIP)) == model.VALVE_FREE
+    # Quasi-static free-mode speed: A_A p = F + B v with p = -A_e v / G_free.
+    expected = -300.0 / (HIP.area_a * HIP.flow_area / HIP.free_conductance + HIP.damping)
+    assert moved[-1, 0, model.V] == pytest.approx(expected, rel=0.05)
+    held = model.initial_state(HIP, 0.08, 300.0)
+    kept = run(HIP, held, held[model.N], 300.0, 0.1).states
+    assert abs(kept[-1, 0, model.X] - 0.08) < 5e-4  # in assist the same force is held
+
+
+def balance_error(states, params):
+    first, last = states[0], states[-1]
+    pumped = last[model.VOL_PUMP] + last[model.VOL_CAVITATION]
+    accounted = params.flow_area * (last[model.X] - first[model.X]) \
+        + last[model.VOL_COMPRESSION] + last[model.VOL_LEAK] + last[model.VOL_RELIEF] \
+        + last[model.VOL_FREE]
+    total = sum(abs(last[i]) for i in range(model.N_DYNAMIC, model.N_STATE))
+    return abs(pumped - accounted) / total
+
+
+def test_the_mass_balance_closes_over_a_run_through_every_valve_mode():
+    params = HIP.with_effects(quadratic_leakage=1e-21, entrained_air=0.005)
+    period = 0.005
+    commands = np.concatenate([np.full(200, 300.0), np.full(100, -200.0), np.zeros(200),
+                               np.full(200, HIP.motor_speed_max)])
+    loads = np.full(len(commands), LOAD)
+    y0 = model.initial_state(params, 0.05, LOAD)
+    fast = simulate_open_loop([params], y0[None, :], commands[:, None], loads, period)
+    modes = {model.valve_mode(s, model.pack(params)) for s in fast.states[:, 0]}
+    assert modes == {model.VALVE_FREE, model.VALVE_ASSIST, model.VALVE_RELIEF}
+    assert fast.states[-1, 0, model.VOL_CAVITATION] >= 0.0
+    assert balance_error(fast.states[:, 0], params) < 1e-6
+    reference = simulate_reference(params, y0, commands, loads, period)
+    assert balance_error(reference, params) < 1e-6
+
+
+def track_sine(params, amplitude=0.02, frequency=1.0, duration=3.0, period=0.001):
+    t = np.arange(round(duration / period)) * period
+    x_ref = 0.065 + amplitude * np.sin(2 * math.pi * frequency * t)
+    v_ref = amplitude * 2 * math.pi * frequency * np.cos(2 * math.pi * frequency * t)
+    y0 = model.initial_state(params, 0.065, LOAD)
+    gains = np.array([[35e3, 0.0, 1.0 / linear.velocity_gain(params)]])
+    result = simulate_closed_loop([params], y0[None, :], x_ref[:, None], v_ref[:, None],
+                                  np.full(len(t), LOAD), gains, period)
+    return result.states[1:, 0]
+
+
+def hysteresis(states):
+    v, p = states[:, model.V], states[:, model.PA]
+    half = len(v) // 3  # skip the start-up
+    extending, retracting = v[half:] > 0.02, v[half:] < -0.02
+    return p[half:][extending].mean() - p[half:][retracting].mean()
+
+
+def test_friction_adds_pressure_hysteresis_with_the_sign_of_velocity():
+    coulomb = 80.0
+    without = hysteresis(track_sine(HIP))
+    with_friction = hysteresis(track_sine(HIP.with_effects(coulomb_friction=coulomb)))
+    assert with_friction - without == pytest.approx(2 * coulomb / HIP.area_a, rel=0.25)
+
+
+def test_a_pump_dead_zone_stops_small_commands():
+    deadzone = 20.0
+    params = HIP.with_effects(pump_deadzone=deadzone)
+    y0 = model.initial_state(HIP, 0.05)
+    still = run(params, y0, 0.5 * deadzone, 0.0, 0.5).states[-1, 0, model.X] - 0.05
+    moving = run(HIP, y0, 0.5 * deadzone, 0.0, 0.5).states[-1, 0, model.X] - 0.05
+    assert abs(still) < 1e-5 and moving > 1e-3
+    # Beyond the dead zone the pump delivers the excess speed: dz + 10 moves as 10 without.
+    beyond = run(params, y0, deadzone + 0.5 * deadzone, 0.0, 0.5).states[-1, 0, model.X] - 0.05
+    assert beyond == pytest.approx(moving, rel=0.02)
+
+
+def command_to_velocity_lag(params, period=0.001, duration=4.0):
+    rng = np.random.default_rng(3)
+    steps = rng.normal(0.0, 150.0, round(duration / 0.05)).repeat(round(0.05 / period))
+    y0 = model.initial_state(params, 0.065)
+    velocity = run(params, y0, steps, 0.0, duration, period).states[1:, 0, model.V]
+    a = steps - steps.mean()
+    b = velocity - velocity.mean()
+    correlation = np.correlate(b, a, mode='full')[len(a) - 1:len(a) - 1 + 200]
+    return np.argmax(correlation) * period
+
+
+def test_a_transport_delay_shows_as_a_lag_in_the_cross_correlation():
+    delay = 0.025
+    lag_without = command_to_velocity_lag(HIP)
+    lag_with = command_to_velocity_lag(HIP.with_effects(transport_delay=delay))
+    assert lag_with - lag_without == pytest.approx(delay, abs=0.0015)
+
+
+def test_quadratic_leakage_slows_the_loaded_cylinder_by_the_extra_leak():
+    coefficient = 2e-21
+    params = HIP.with_effects(quadratic_leakage=coefficient)
+    y0 = model.initial_state(HIP, 0.03, 4 * LOAD)
+    base = run(HIP, y0, 200.0, 4 * LOAD, 0.4).states[-1, 0]
+    leaky = run(params, y0, 200.0, 4 * LOAD, 0.4).states[-1, 0]
+    extra = coefficient * leaky[model.PA] ** 2
+    drop = base[model.V] - leaky[model.V]
+    assert drop == pytest.approx(extra / (HIP.flow_area + HIP.pump_leakage * HIP.damping
+                                          / HIP.area_a), rel=0.05)
+
+
+def time_to_pressure(params, target):
+    y0 = model.initial_state(params, HIP.stroke, 0.0)
+    y0[model.PA] = 0.0
+    states = run(params, y0, 100.0, 0.0, 0.5, period=0.0005).states[:, 0]
+    return np.argmax(states[:, model.PA] >= target) * 0.0005
+
+
+def test_entrained_air_makes_the_oil_soft_at_low_pressure():
+    clean = time_to_pressure(HIP, 2e6)
+    airy = time_to_pressure(HIP.with_effects(entrained_air=0.01), 2e6)
+    assert airy > 3 * clean
+    prm = model.pack(HIP.with_effects(entrained_air=0.01))
+    assert model.effective_bulk_modulus(1e5, prm) < 0.2 * HIP.bulk_modulus
+    assert model.effective_bulk_modulus(18e6, prm) > 0.85 * HIP.bulk_modulus
+
+
+def test_a_relief_valve_that_cracks_early_settles_below_its_setting():
+    crack = 14e6
+    params = HIP.with_effects(relief_crack_pressure=crack, relief_crack_conductance=1e-11)
+    y0 = model.initial_state(params, HIP.stroke - 0.002, LOAD)
+    settled = run(params, y0, 100.0, LOAD, 1.0).states[-1, 0, model.PA]
+    flow = HIP.pump_displacement * 100.0
+    expected = (flow + 1e-11 * crack) / (1e-11 + HIP.pump_leakage)
+    assert crack < settled < HIP.relief_pressure
+    assert settled == pytest.approx(expected, rel=0.01)
+    nominal = run(HIP, y0, 100.0, LOAD, 1.0).states[-1, 0, model.PA]
+    assert nominal >= HIP.relief_pressure
