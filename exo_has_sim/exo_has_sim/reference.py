@@ -77,3 +77,49 @@ def simulate_reference(params: HasParameters, y0: np.ndarray, n_cmd: np.ndarray,
         if abs(sample * period - t1) < 1e-9:
             out[sample] = y
     return out
+
+
+def simulate_reference_closed_loop(params: HasParameters, y0: np.ndarray, x_ref: np.ndarray,
+                                   v_ref: np.ndarray, f_load: np.ndarray, gains: np.ndarray,
+                                   period: float, rtol: float = 1e-8,
+                                   method: str = 'Radau') -> np.ndarray:
+    """Integrate one joint under the sampled PD law of ``simulate_closed_loop``.
+
+    The controller acts every ``period`` on the sampled position, as in the fast simulator
+    (without transport delay); solve_ivp integrates between two actions.
+
+    Returns
+    -------
+    np.ndarray
+        States at the controller instants, shape (K + 1, N_STATE).
+
+    """
+    prm = model.pack(params)
+    derivative = np.empty(model.N_STATE)
+    samples = len(x_ref)
+    kp, kd, kff = (float(g) for g in np.asarray(gains, dtype=float).reshape(-1)[:3])
+    limit = params.motor_speed_max
+    y = np.array(y0, dtype=float)
+    out = np.empty((samples + 1, model.N_STATE))
+    out[0] = y
+    previous = y[model.X]
+    for k in range(samples):
+        measured = y[model.X]
+        velocity = (measured - previous) / period if k > 0 else 0.0
+        previous = measured
+        command = kff * v_ref[k] + kp * (x_ref[k] - measured) + kd * (v_ref[k] - velocity)
+        command = min(max(command, -limit), limit)
+
+        def fun(_t: float, state: np.ndarray, c: float = command,
+                f: float = float(f_load[k])) -> np.ndarray:
+            model.rhs(state, c, f, prm, derivative)
+            return np.array(derivative)
+
+        solution = solve_ivp(fun, (k * period, (k + 1) * period), y, method=method, rtol=rtol,
+                             atol=_ATOL)
+        if not solution.success:
+            msg = f'solve_ivp failed at t = {k * period:.4f} s: {solution.message}'
+            raise SimulationError(msg)
+        y = solution.y[:, -1]
+        out[k + 1] = y
+    return out

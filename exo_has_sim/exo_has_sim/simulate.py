@@ -1,16 +1,17 @@
-"""Fast fixed-step simulation of N HAS joints, open or closed loop.
+"""Fast simulation of N HAS joints, open or closed loop.
 
 The pressure dynamics are stiff (the relief and free-mode passages discharge the chamber in
 about 0.1 ms, the end stops ring at 100 Hz), so an explicit method would need steps of a few
 microseconds. The integrator is the two-stage, second-order, L-stable Rosenbrock method ROS2
-(Verwer, Spee, Blom, Hundsdorfer 1999), linearly implicit (no Newton iterations), with a
-finite-difference Jacobian of the five dynamic states and an in-place 5x5 solve, compiled with
-numba. The step size is controlled with the method's embedded first-order solution: a fixed
-1 ms step overshoots by tens of MPa where the relief valve opens within a step, and a fixed step
-small enough everywhere costs several times more. Held inputs change only at interval
-boundaries (sample instants, and those shifted by a transport delay), where steps are cut.
-The six cumulative-volume states are carried through the same stages, so the mass balance
-holds to rounding. Measured against solve_ivp (Radau) in the tests and bench/.
+(Verwer, Spee, Blom, Hundsdorfer 1999): linearly implicit (no Newton iterations), with the
+analytic Jacobian of the five dynamic states (:func:`exo_has_sim.model.jacobian`) and an
+in-place 5x5 LU solve, compiled with numba. The step size is controlled with the method's
+embedded first-order solution: a fixed 1 ms step overshoots by tens of MPa where the relief
+valve opens within a step, and a fixed step small enough everywhere costs several times more
+(measured in bench/simulator.py). Held inputs change only at interval boundaries (sample
+instants, and those shifted by a transport delay), where steps are cut. The six
+cumulative-volume states are carried through the same stages, so the mass balance holds to
+rounding.
 """
 
 from __future__ import annotations
@@ -29,34 +30,46 @@ from exo_has_sim.parameters import HasParameters
 GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
 #: Default largest integration step [s].
 DEFAULT_STEP = 2.0e-3
-#: Default relative tolerance of the step-size control.
-DEFAULT_RTOL = 1.0e-4
-# Typical size of each dynamic state (m, m/s, Pa, rad/s, -): finite-difference increments and
-# absolute tolerances are fractions of it.
-_FD_SCALE = np.array([1e-3, 1e-3, 1e5, 1.0, 1e-3])
-_ATOL = np.array([1e-7, 1e-5, 1e3, 1e-2, 1e-4])
+#: Default relative tolerance of the step-size control (bench/simulator.py: about 0.1 to 0.2 mm
+#: of position error in walking against solve_ivp at rtol 1e-10, where 0.65 mm is allowed).
+DEFAULT_RTOL = 1.0e-2
+# Absolute tolerance of each dynamic state (m, m/s, Pa, rad/s, -).
+_ATOL = np.array([1e-6, 1e-4, 1e4, 1e-1, 1e-3])
 
 
 @njit(cache=True)
-def _solve5(a: np.ndarray, b: np.ndarray) -> None:
-    """Solve a x = b in place for a 5x5 system (b becomes x; a is destroyed)."""
+def _lu5(a: np.ndarray, pivots: np.ndarray) -> None:
+    """LU-factorise a 5x5 matrix in place with partial pivoting."""
     n = 5
     for col in range(n):
         pivot = col
         for row in range(col + 1, n):
             if abs(a[row, col]) > abs(a[pivot, col]):
                 pivot = row
+        pivots[col] = pivot
         if pivot != col:
             for k in range(n):
                 a[col, k], a[pivot, k] = a[pivot, k], a[col, k]
-            b[col], b[pivot] = b[pivot], b[col]
         inv = 1.0 / a[col, col]
         for row in range(col + 1, n):
-            factor = a[row, col] * inv
+            a[row, col] *= inv
+            factor = a[row, col]
             if factor != 0.0:
-                for k in range(col, n):
+                for k in range(col + 1, n):
                     a[row, k] -= factor * a[col, k]
-                b[row] -= factor * b[col]
+
+
+@njit(cache=True)
+def _lu_solve5(a: np.ndarray, pivots: np.ndarray, b: np.ndarray) -> None:
+    """Solve with the factors of :func:`_lu5`; b becomes the solution."""
+    n = 5
+    for col in range(n):  # the factorisation swapped whole rows: permute b first
+        pivot = pivots[col]
+        if pivot != col:
+            b[col], b[pivot] = b[pivot], b[col]
+    for col in range(n):
+        for row in range(col + 1, n):
+            b[row] -= a[row, col] * b[col]
     for row in range(n - 1, -1, -1):
         acc = b[row]
         for k in range(row + 1, n):
@@ -70,32 +83,22 @@ _F0, _FP, _YP, _K1, _K2, _YN = range(6)
 
 @njit(cache=True)
 def _ros2_trial(y: np.ndarray, h: float, n_cmd: float, f_load: float, prm: np.ndarray,
-                scale: np.ndarray, work: np.ndarray, jac: np.ndarray, mat: np.ndarray,
-                lu: np.ndarray, atol: np.ndarray, rtol: float) -> float:
+                work: np.ndarray, jac: np.ndarray, pivots: np.ndarray, lu: np.ndarray,
+                atol: np.ndarray, rtol: float) -> float:
     """One ROS2 step of length h from y into work[_YN]; return the scaled error estimate."""
     ns = y.shape[0]
     nd = 5
     f0, fp, yp, k1, k2, yn = work[_F0], work[_FP], work[_YP], work[_K1], work[_K2], work[_YN]
-    model.rhs(y, n_cmd, f_load, prm, f0)
-    for i in range(ns):
-        yp[i] = y[i]
-    for j in range(nd):
-        delta = 1e-7 * max(abs(y[j]), scale[j])
-        yp[j] = y[j] + delta
-        model.rhs(yp, n_cmd, f_load, prm, fp)
-        for i in range(ns):
-            jac[i, j] = (fp[i] - f0[i]) / delta
-        yp[j] = y[j]
+    model.rhs_and_jacobian(y, n_cmd, f_load, prm, f0, jac)
     gh = GAMMA * h
     for i in range(nd):
         for k in range(nd):
-            mat[i, k] = -gh * jac[i, k]
-        mat[i, i] += 1.0
+            lu[i, k] = -gh * jac[i, k]
+        lu[i, i] += 1.0
+    _lu5(lu, pivots)
     for i in range(nd):
         k1[i] = f0[i]
-        for k in range(nd):
-            lu[i, k] = mat[i, k]
-    _solve5(lu, k1[:nd])
+    _lu_solve5(lu, pivots, k1[:nd])
     for i in range(nd, ns):
         acc = f0[i]
         for k in range(nd):
@@ -106,9 +109,7 @@ def _ros2_trial(y: np.ndarray, h: float, n_cmd: float, f_load: float, prm: np.nd
     model.rhs(yp, n_cmd, f_load, prm, fp)
     for i in range(nd):
         k2[i] = fp[i] - 2.0 * k1[i]
-        for k in range(nd):
-            lu[i, k] = mat[i, k]
-    _solve5(lu, k2[:nd])
+    _lu_solve5(lu, pivots, k2[:nd])
     for i in range(nd, ns):
         acc = fp[i] - 2.0 * k1[i]
         for k in range(nd):
@@ -126,8 +127,8 @@ def _ros2_trial(y: np.ndarray, h: float, n_cmd: float, f_load: float, prm: np.nd
 
 @njit(cache=True)
 def _advance(y: np.ndarray, span: float, step: np.ndarray, n_cmd: float, f_load: float,
-             prm: np.ndarray, scale: np.ndarray, work: np.ndarray, jac: np.ndarray,
-             mat: np.ndarray, lu: np.ndarray, atol: np.ndarray, rtol: float,
+             prm: np.ndarray, work: np.ndarray, jac: np.ndarray,
+             pivots: np.ndarray, lu: np.ndarray, atol: np.ndarray, rtol: float,
              max_step: float) -> int:
     """Integrate y over ``span`` seconds with adaptive ROS2 steps; return the steps taken.
 
@@ -139,7 +140,7 @@ def _advance(y: np.ndarray, span: float, step: np.ndarray, n_cmd: float, f_load:
     while t < span * (1.0 - 1e-12):
         last = t + h >= span
         trial = span - t if last else h
-        error = _ros2_trial(y, trial, n_cmd, f_load, prm, scale, work, jac, mat, lu, atol,
+        error = _ros2_trial(y, trial, n_cmd, f_load, prm, work, jac, pivots, lu, atol,
                             rtol)
         if error <= 1.0 or trial < 1e-9:
             for i in range(y.shape[0]):
@@ -157,7 +158,7 @@ def _advance(y: np.ndarray, span: float, step: np.ndarray, n_cmd: float, f_load:
 
 @njit(cache=True)
 def _open_loop(y0: np.ndarray, prm: np.ndarray, n_cmd: np.ndarray, f_load: np.ndarray,
-               period: float, delay: np.ndarray, scale: np.ndarray, atol: np.ndarray,
+               period: float, delay: np.ndarray, atol: np.ndarray,
                rtol: float, max_step: float, out: np.ndarray) -> int:
     joints, ns = y0.shape
     samples = n_cmd.shape[0]
@@ -165,7 +166,7 @@ def _open_loop(y0: np.ndarray, prm: np.ndarray, n_cmd: np.ndarray, f_load: np.nd
     out[0] = y
     work = np.empty((6, ns))
     jac = np.empty((ns, 5))
-    mat = np.empty((5, 5))
+    pivots = np.empty(5, dtype=np.int64)
     lu = np.empty((5, 5))
     taken = 0
     for j in range(joints):
@@ -179,10 +180,10 @@ def _open_loop(y0: np.ndarray, prm: np.ndarray, n_cmd: np.ndarray, f_load: np.nd
             c1 = n_cmd[first, j] if first >= 0 else y0[j, model.N]
             c2 = n_cmd[second, j] if second >= 0 else y0[j, model.N]
             if shift > 1e-12:
-                taken += _advance(y[j], shift, step, c1, f_load[k, j], prm[j], scale, work,
-                                  jac, mat, lu, atol, rtol, max_step)
-            taken += _advance(y[j], period - shift, step, c2, f_load[k, j], prm[j], scale,
-                              work, jac, mat, lu, atol, rtol, max_step)
+                taken += _advance(y[j], shift, step, c1, f_load[k, j], prm[j], work,
+                                  jac, pivots, lu, atol, rtol, max_step)
+            taken += _advance(y[j], period - shift, step, c2, f_load[k, j], prm[j],
+                              work, jac, pivots, lu, atol, rtol, max_step)
             out[k + 1, j] = y[j]
     return taken
 
@@ -190,7 +191,7 @@ def _open_loop(y0: np.ndarray, prm: np.ndarray, n_cmd: np.ndarray, f_load: np.nd
 @njit(cache=True)
 def _closed_loop(y0: np.ndarray, prm: np.ndarray, x_ref: np.ndarray, v_ref: np.ndarray,
                  f_load: np.ndarray, gains: np.ndarray, period: float,
-                 delay_samples: np.ndarray, scale: np.ndarray, atol: np.ndarray, rtol: float,
+                 delay_samples: np.ndarray, atol: np.ndarray, rtol: float,
                  max_step: float, out: np.ndarray, commands: np.ndarray) -> int:
     joints, ns = y0.shape
     samples = x_ref.shape[0]
@@ -198,7 +199,7 @@ def _closed_loop(y0: np.ndarray, prm: np.ndarray, x_ref: np.ndarray, v_ref: np.n
     out[0] = y
     work = np.empty((6, ns))
     jac = np.empty((ns, 5))
-    mat = np.empty((5, 5))
+    pivots = np.empty(5, dtype=np.int64)
     lu = np.empty((5, 5))
     taken = 0
     for j in range(joints):
@@ -214,8 +215,8 @@ def _closed_loop(y0: np.ndarray, prm: np.ndarray, x_ref: np.ndarray, v_ref: np.n
             commands[k, j] = min(max(command, -limit), limit)
             index = k - delay_samples[j]
             applied = commands[index, j] if index >= 0 else y0[j, model.N]
-            taken += _advance(y[j], period, step, applied, f_load[k, j], prm[j], scale, work,
-                              jac, mat, lu, atol, rtol, max_step)
+            taken += _advance(y[j], period, step, applied, f_load[k, j], prm[j], work,
+                              jac, pivots, lu, atol, rtol, max_step)
             out[k + 1, j] = y[j]
     return taken
 
@@ -307,7 +308,7 @@ def simulate_open_loop(params: Sequence[HasParameters], y0: np.ndarray, n_cmd: n
     states = np.empty((commands.shape[0] + 1, joints, model.N_STATE))
     delay = np.array([p.effects.transport_delay for p in params])
     _open_loop(np.ascontiguousarray(y0, dtype=float), _packed(params), commands, loads, period,
-               delay, _FD_SCALE, _ATOL, rtol, max_step, states)
+               delay, _ATOL, rtol, max_step, states)
     if not np.all(np.isfinite(states)):
         raise SimulationError('the simulation diverged (NaN or infinite state)')
     time = np.arange(commands.shape[0] + 1) * period
@@ -345,7 +346,7 @@ def simulate_closed_loop(params: Sequence[HasParameters], y0: np.ndarray, x_ref:
     states = np.empty((samples + 1, joints, model.N_STATE))
     commands = np.empty((samples, joints))
     _closed_loop(np.ascontiguousarray(y0, dtype=float), _packed(params), refs, vels, loads,
-                 gain_array, period, delay, _FD_SCALE, _ATOL, rtol, max_step, states, commands)
+                 gain_array, period, delay, _ATOL, rtol, max_step, states, commands)
     if not np.all(np.isfinite(states)):
         raise SimulationError('the simulation diverged (NaN or infinite state)')
     return SimulationResult(np.arange(samples + 1) * period, states, commands)

@@ -173,3 +173,30 @@ def test_a_relief_valve_that_cracks_early_settles_below_its_setting():
     assert settled == pytest.approx(expected, rel=0.01)
     nominal = run(HIP, y0, 100.0, LOAD, 1.0).states[-1, 0, model.PA]
     assert nominal >= HIP.relief_pressure
+
+
+def test_the_analytic_jacobian_is_the_derivative_of_the_model():
+    params = HIP.with_effects(coulomb_friction=60.0, stribeck_friction=30.0, pump_deadzone=8.0,
+                              quadratic_leakage=2e-21, relief_crack_pressure=15e6,
+                              relief_crack_conductance=2e-12, entrained_air=0.01)
+    prm = model.pack(params)
+    rng = np.random.default_rng(0)
+    steps = (1e-8, 1e-8, 1e-1, 1e-6, 1e-8)
+    for _ in range(200):
+        y = np.zeros(model.N_STATE)
+        y[:model.N_DYNAMIC] = (rng.uniform(-0.001, 0.131), rng.normal(0.0, 0.1),
+                               rng.uniform(-0.08e6, 19e6), rng.normal(0.0, 100.0),
+                               rng.uniform(0.0, 1.0))
+        analytic = np.zeros((model.N_STATE, model.N_DYNAMIC))
+        model.jacobian(y, 50.0, LOAD, prm, analytic)
+        numeric = np.zeros_like(analytic)
+        for j, step in enumerate(steps):
+            plus, minus = y.copy(), y.copy()
+            plus[j] += step
+            minus[j] -= step
+            f_plus, f_minus = np.zeros(model.N_STATE), np.zeros(model.N_STATE)
+            model.rhs(plus, 50.0, LOAD, prm, f_plus)
+            model.rhs(minus, 50.0, LOAD, prm, f_minus)
+            numeric[:, j] = (f_plus - f_minus) / (2 * step)
+        row_scale = np.abs(numeric).max(axis=1, keepdims=True) + 1e-20
+        assert np.max(np.abs(analytic - numeric) / row_scale) < 1e-4
