@@ -42,6 +42,25 @@ RosYamlLoader.add_implicit_resolver(
 def load_yaml(text: str) -> object:
     """Parse YAML text with :class:`RosYamlLoader`."""
     return yaml.load(text, Loader=RosYamlLoader)
+
+
+def read_yaml_file(path: Path, what: str = 'parameters file') -> object:
+    """Read and parse a YAML file with :class:`RosYamlLoader`.
+
+    Raises
+    ------
+    CommandLineError
+        Naming the file when it cannot be read or is not YAML.
+
+    """
+    try:
+        return load_yaml(path.read_text(encoding='utf-8'))
+    except OSError as exc:
+        msg = f'cannot read {what} {path}: {exc.strerror}'
+        raise CommandLineError(msg) from exc
+    except yaml.YAMLError as exc:
+        msg = f'{what} {path} is not valid YAML: {exc}'
+        raise CommandLineError(msg) from exc
 _FLAGS_WITHOUT_VALUE = frozenset((
     '--enable-rosout-logs', '--disable-rosout-logs', '--enable-stdout-logs',
     '--disable-stdout-logs', '--enable-external-lib-logs', '--disable-external-lib-logs',
@@ -205,14 +224,7 @@ def load_params_file(path: Path) -> list[ParameterOverride]:
 
     """
     origin = str(path)
-    try:
-        document = load_yaml(path.read_text(encoding='utf-8'))
-    except OSError as exc:
-        msg = f'cannot read parameters file {origin}: {exc.strerror}'
-        raise CommandLineError(msg) from exc
-    except yaml.YAMLError as exc:
-        msg = f'parameters file {origin} is not valid YAML: {exc}'
-        raise CommandLineError(msg) from exc
+    document = read_yaml_file(path)
     if not isinstance(document, Mapping):
         msg = f'parameters file {origin}: expected a mapping of node names at the top level'
         raise CommandLineError(msg)

@@ -16,9 +16,8 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
-import yaml
-
-from exo_has_runtime.arguments import load_yaml
+from exo_has_runtime.arguments import read_yaml_file
+from exo_has_runtime.errors import CommandLineError
 from exo_has_sim.errors import ParameterError
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / 'config'
@@ -312,13 +311,9 @@ def load_parameters(source: str | Path) -> HasParameters:
     """
     path = CONFIG_DIR / f'{source}.yaml' if source in JOINT_TYPES else Path(source)
     try:
-        document: Any = load_yaml(path.read_text(encoding='utf-8'))
-    except OSError as exc:
-        msg = f'cannot read parameters file {path}: {exc.strerror}'
-        raise ParameterError(msg) from exc
-    except yaml.YAMLError as exc:
-        msg = f'parameters file {path} is not valid YAML: {exc}'
-        raise ParameterError(msg) from exc
+        document: Any = read_yaml_file(path)
+    except CommandLineError as exc:
+        raise ParameterError(str(exc)) from exc
     try:
         section = document['/**']['ros__parameters']
         values = section['has']

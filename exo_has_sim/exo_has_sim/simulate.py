@@ -6,10 +6,11 @@ microseconds. The integrator is the two-stage, second-order, L-stable Rosenbrock
 (Verwer, Spee, Blom, Hundsdorfer 1999): linearly implicit (no Newton iterations), with the
 analytic Jacobian of the five dynamic states (:func:`exo_has_sim.model.jacobian`) and an
 in-place 5x5 LU solve, compiled with numba. The step size is controlled with the method's
-embedded first-order solution: a fixed 1 ms step overshoots by tens of MPa where the relief
-valve opens within a step, and a fixed step small enough everywhere costs several times more
-(measured in bench/simulator.py). Held inputs change only at interval boundaries (sample
-instants, and those shifted by a transport delay), where steps are cut. The six
+embedded first-order solution: a fixed 1 ms step overshot by tens of MPa where the relief
+valve opens within a step, and a fixed step small enough everywhere cost several times more.
+bench/simulator.py measures speed and error against solve_ivp. Held inputs change only at
+interval boundaries (sample instants, and those shifted by a transport delay), where steps
+are cut. The six
 cumulative-volume states are carried through the same stages, so the mass balance holds to
 rounding.
 """
@@ -157,6 +158,13 @@ def _advance(y: np.ndarray, span: float, step: np.ndarray, n_cmd: float, f_load:
 
 
 @njit(cache=True)
+def _workspace(ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Allocate the work arrays of :func:`_advance` for a state of length ns."""
+    return (np.empty((6, ns)), np.empty((ns, 5)), np.empty(5, dtype=np.int64),
+            np.empty((5, 5)))
+
+
+@njit(cache=True)
 def _open_loop(y0: np.ndarray, prm: np.ndarray, n_cmd: np.ndarray, f_load: np.ndarray,
                period: float, delay: np.ndarray, atol: np.ndarray,
                rtol: float, max_step: float, out: np.ndarray) -> int:
@@ -164,10 +172,7 @@ def _open_loop(y0: np.ndarray, prm: np.ndarray, n_cmd: np.ndarray, f_load: np.nd
     samples = n_cmd.shape[0]
     y = y0.copy()
     out[0] = y
-    work = np.empty((6, ns))
-    jac = np.empty((ns, 5))
-    pivots = np.empty(5, dtype=np.int64)
-    lu = np.empty((5, 5))
+    work, jac, pivots, lu = _workspace(ns)
     taken = 0
     for j in range(joints):
         step = np.array([max_step])
@@ -197,10 +202,7 @@ def _closed_loop(y0: np.ndarray, prm: np.ndarray, x_ref: np.ndarray, v_ref: np.n
     samples = x_ref.shape[0]
     y = y0.copy()
     out[0] = y
-    work = np.empty((6, ns))
-    jac = np.empty((ns, 5))
-    pivots = np.empty(5, dtype=np.int64)
-    lu = np.empty((5, 5))
+    work, jac, pivots, lu = _workspace(ns)
     taken = 0
     for j in range(joints):
         step = np.array([max_step])
