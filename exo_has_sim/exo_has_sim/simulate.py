@@ -17,6 +17,7 @@ rounding.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -352,3 +353,107 @@ def simulate_closed_loop(params: Sequence[HasParameters], y0: np.ndarray, x_ref:
     if not np.all(np.isfinite(states)):
         raise SimulationError('the simulation diverged (NaN or infinite state)')
     return SimulationResult(np.arange(samples + 1) * period, states, commands)
+
+
+@njit(cache=True)
+def _advance_all(y: np.ndarray, span: float, steps: np.ndarray, n_cmd: np.ndarray,
+                 f_load: np.ndarray, prm: np.ndarray, atol: np.ndarray, rtol: float,
+                 max_step: float) -> int:
+    work, jac, pivots, lu = _workspace(y.shape[1])
+    taken = 0
+    for j in range(y.shape[0]):
+        taken += _advance(y[j], span, steps[j:j + 1], n_cmd[j], f_load[j], prm[j], work, jac,
+                          pivots, lu, atol, rtol, max_step)
+    return taken
+
+
+class PlantSimulator:
+    """N joints advanced step by step under held inputs, for a plant node.
+
+    Each call to :meth:`step` holds the given commands and loads for ``dt`` seconds. A joint's
+    transport delay holds its commands back in time exactly: the drive acts on a command
+    ``transport_delay`` after it was given (before the first one, on the initial motor speed).
+
+    Parameters
+    ----------
+    params : Sequence[HasParameters]
+        One parameter set per joint.
+    y0 : np.ndarray
+        Initial states, shape (N, N_STATE).
+
+    """
+
+    def __init__(self, params: Sequence[HasParameters], y0: np.ndarray,
+                 max_step: float = DEFAULT_STEP, rtol: float = DEFAULT_RTOL) -> None:
+        _check_steps(1.0, max_step, rtol)
+        self.params = list(params)
+        self.state = np.array(y0, dtype=float, copy=True)
+        if self.state.shape != (len(self.params), model.N_STATE):
+            msg = f'y0 must have shape ({len(self.params)}, {model.N_STATE})'
+            raise SimulationError(msg)
+        self.time = 0.0
+        self._prm = _packed(self.params)
+        self._delay = np.array([p.effects.transport_delay for p in self.params])
+        self._steps = np.full(len(self.params), max_step)
+        self._max_step = max_step
+        self._rtol = rtol
+        # Per joint: times at which commands were given, and the commands.
+        self._history: list[list[tuple[float, float]]] = [
+            [(-np.inf, float(self.state[j, model.N]))] for j in range(len(self.params))]
+
+    def _applied(self, joint: int, t: float) -> float:
+        """Command the drive of a joint acts on at time t."""
+        moment = t - self._delay[joint]
+        value = self._history[joint][0][1]
+        for given, command in self._history[joint]:
+            if given <= moment + 1e-12:
+                value = command
+            else:
+                break
+        return value
+
+    def step(self, n_cmd: np.ndarray, f_load: np.ndarray, dt: float) -> np.ndarray:
+        """Give commands [rad/s] and loads [N] (one per joint), advance dt [s], return states.
+
+        Raises
+        ------
+        SimulationError
+            On a non-finite input, a non-positive dt, or a diverged state.
+
+        """
+        commands = np.asarray(n_cmd, dtype=float).reshape(-1)
+        loads = np.asarray(f_load, dtype=float).reshape(-1)
+        joints = len(self.params)
+        if commands.shape != (joints,) or loads.shape != (joints,):
+            msg = f'n_cmd and f_load need one value per joint ({joints})'
+            raise SimulationError(msg)
+        if not (np.all(np.isfinite(commands)) and np.all(np.isfinite(loads))):
+            raise SimulationError('n_cmd and f_load must be finite')
+        if not dt > 0.0:
+            msg = f'dt must be positive, got {dt}'
+            raise SimulationError(msg)
+        start = self.time
+        for j in range(joints):
+            self._history[j].append((start, float(commands[j])))
+            horizon = start - self._delay[j]  # older commands no longer matter
+            while len(self._history[j]) > 2 and self._history[j][1][0] <= horizon:
+                self._history[j].pop(0)
+        # Cut each joint's step where one of its delayed commands takes effect.
+        for j in range(joints):
+            cuts = {start, start + dt}
+            for given, _ in self._history[j]:
+                effect = given + self._delay[j]
+                if start < effect < start + dt:
+                    cuts.add(effect)
+            for t0, t1 in itertools.pairwise(sorted(cuts)):
+                _advance_all(self.state[j:j + 1], t1 - t0, self._steps[j:j + 1],
+                             np.array([self._applied(j, t0)]), loads[j:j + 1],
+                             self._prm[j:j + 1], _ATOL, self._rtol, self._max_step)
+        self.time = start + dt
+        if not np.all(np.isfinite(self.state)):
+            raise SimulationError('the simulation diverged (NaN or infinite state)')
+        return self.state.copy()
+
+    def valve_modes(self) -> list[int]:
+        """Valve mode of each joint now (exo_has_msgs/msg/HasState VALVE_* numbering)."""
+        return [model.valve_mode(self.state[j], self._prm[j]) for j in range(len(self.params))]

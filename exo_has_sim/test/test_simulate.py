@@ -63,3 +63,26 @@ def test_joints_are_independent_in_a_vectorised_run():
     both = simulate_open_loop([HIP, knee], y0, commands, loads, PERIOD)
     alone = simulate_open_loop([knee], y0[1:], commands[:, 1:], loads[:, 1:], PERIOD)
     np.testing.assert_allclose(both.states[:, 1], alone.states[:, 0], rtol=0, atol=0)
+
+
+@pytest.mark.parametrize('delay', [0.0, 0.0123])
+def test_stepping_a_plant_matches_the_batch_simulation(delay):
+    from exo_has_sim.simulate import PlantSimulator
+
+    knee = load_parameters('knee').with_effects(transport_delay=delay)
+    hip = HIP.with_effects(transport_delay=delay / 2)
+    params = [hip, knee]
+    y0 = np.stack([model.initial_state(hip, 0.05, 400.0), model.initial_state(knee, 0.06)])
+    rng = np.random.default_rng(1)
+    commands = rng.normal(0.0, 80.0, (400, 2))
+    loads = np.column_stack([np.full(400, 400.0), np.zeros(400)])
+    batch = simulate_open_loop(params, y0, commands, loads, PERIOD)
+    plant = PlantSimulator(params, y0)
+    for k in range(400):
+        state = plant.step(commands[k], loads[k], PERIOD)
+    np.testing.assert_allclose(state[:, model.X], batch.states[-1, :, model.X], atol=1e-6)
+    assert plant.time == pytest.approx(400 * PERIOD)
+    assert plant.valve_modes() == [model.valve_mode(batch.states[-1, j], model.pack(p))
+                                   for j, p in enumerate(params)]
+    with pytest.raises(SimulationError, match='finite'):
+        plant.step(np.array([np.nan, 0.0]), loads[0], PERIOD)
