@@ -387,7 +387,7 @@ class PlantSimulator:
                  max_step: float = DEFAULT_STEP, rtol: float = DEFAULT_RTOL) -> None:
         _check_steps(1.0, max_step, rtol)
         self.params = list(params)
-        self.state = np.array(y0, dtype=float, copy=True)
+        self.state: np.ndarray = np.array(y0, dtype=float, copy=True)
         if self.state.shape != (len(self.params), model.N_STATE):
             msg = f'y0 must have shape ({len(self.params)}, {model.N_STATE})'
             raise SimulationError(msg)
@@ -452,7 +452,7 @@ class PlantSimulator:
         self.time = start + dt
         if not np.all(np.isfinite(self.state)):
             raise SimulationError('the simulation diverged (NaN or infinite state)')
-        return self.state.copy()
+        return np.array(self.state)
 
     def valve_modes(self) -> list[int]:
         """Valve mode of each joint now (exo_has_msgs/msg/HasState VALVE_* numbering)."""
