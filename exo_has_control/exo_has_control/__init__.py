@@ -1,1 +1,1 @@
-"""Hip/knee PD controllers and the gait trajectory publisher (issue 4 fills it)."""
+"""Hip/knee PD controllers and the gait trajectory publisher (trajectory generation so far)."""

@@ -10,10 +10,12 @@ from __future__ import annotations
 import csv
 import math
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.interpolate import CubicSpline
 
 from exo_has_sim.errors import ParameterError
 
@@ -43,12 +45,23 @@ class GaitCycle:
     knee_angle: FloatArray
     source: str
 
+    @cached_property
+    def _splines(self) -> tuple[CubicSpline, CubicSpline]:
+        # 100 % is the next cycle's 0 %: tables often hold both with slightly different values
+        # (the mean cycle does not close); drop the 100 % sample and close the cycle on the 0 %
+        # value, with a periodic cubic spline, so angles and velocities are continuous.
+        keep = self.cycle_percent < 100.0
+        cycle = np.append(self.cycle_percent[keep], 100.0)
+        hip = np.append(self.hip_angle[keep], self.hip_angle[keep][0])
+        knee = np.append(self.knee_angle[keep], self.knee_angle[keep][0])
+        return (CubicSpline(cycle, hip, bc_type='periodic'),
+                CubicSpline(cycle, knee, bc_type='periodic'))
+
     def angles_at(self, phase: NDArray[np.float64] | float) -> tuple[FloatArray, FloatArray]:
         """Hip and knee angles [rad] at gait phase(s) in cycles (wrapped to [0, 1))."""
         percent = (np.asarray(phase, dtype=float) % 1.0) * 100.0
-        hip = np.interp(percent, self.cycle_percent, self.hip_angle, period=100.0)
-        knee = np.interp(percent, self.cycle_percent, self.knee_angle, period=100.0)
-        return hip, knee
+        hip, knee = self._splines
+        return np.asarray(hip(percent), dtype=float), np.asarray(knee(percent), dtype=float)
 
 
 def load_gait_cycle(path: str | Path = WINTER) -> GaitCycle:

@@ -41,3 +41,14 @@ def test_malformed_gait_tables_are_refused_with_a_clear_message(tmp_path, text, 
     path.write_text(text)
     with pytest.raises(ParameterError, match=message):
         load_gait_cycle(path)
+
+
+def test_the_cycle_closes_continuously_where_100_percent_meets_0():
+    gait = load_gait_cycle()
+    phase = np.linspace(0.9, 1.1, 20001)
+    hip, knee = gait.angles_at(phase)
+    assert np.max(np.abs(np.diff(hip))) < 1e-4 and np.max(np.abs(np.diff(knee))) < 1e-4
+    rate = np.diff(knee) / np.diff(phase)
+    assert np.max(np.abs(np.diff(rate))) < 0.05  # no kinks: the velocity is continuous too
+    np.testing.assert_allclose(gait.angles_at(gait.cycle_percent[:-1] / 100.0)[0],
+                               gait.hip_angle[:-1], atol=1e-12)  # through the samples

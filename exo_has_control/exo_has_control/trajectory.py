@@ -1,0 +1,130 @@
+"""Joint-angle references for walking and squatting, both legs, with smooth starts and stops.
+
+Walking follows a normative gait cycle (Winter's table by default, or any table of the same
+shape) at a stride frequency; the right leg runs half a cycle behind the left. A trial starts
+and ends standing: the motion's amplitude about the standing pose ramps in and out with a
+smoothstep, so angle and angular velocity are continuous.
+
+No normative squat curve is at hand, so squatting is generated: hip and knee flex together
+along a raised cosine ``depth * (1 - cos(2 pi f t)) / 2`` from standing to a partial squat and
+back (zero angular velocity at the top and the bottom), at 0.5 Hz by default, the paper's
+squatting frequency (section 5.2). The default depth (hip 40 deg, knee 70 deg) stays inside the
+assumed linkage ranges of exo_has_sim's parameter sets.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from exo_has_sim.gait import GaitCycle
+
+FloatArray = NDArray[np.float64]
+JOINTS = ('left_hip', 'left_knee', 'right_hip', 'right_knee')
+
+
+@dataclass(frozen=True)
+class TrialPlan:
+    """One trial: a motion between a smooth start and a smooth stop.
+
+    Attributes
+    ----------
+    motion : str
+        ``'walk'``, ``'squat'`` or ``'stand'``.
+    duration : float
+        Length of the trial including the ramps [s].
+    ramp : float
+        Length of the start and of the stop ramp [s].
+    stride_frequency : float
+        Walking strides per second [Hz] (the paper: 0.85).
+    squat_frequency : float
+        Squats per second [Hz] (the paper: 0.5).
+    squat_hip, squat_knee : float
+        Flexion at the bottom of a squat [rad].
+
+    """
+
+    motion: str
+    duration: float
+    ramp: float = 1.0
+    stride_frequency: float = 0.85
+    squat_frequency: float = 0.5
+    squat_hip: float = math.radians(40.0)
+    squat_knee: float = math.radians(70.0)
+
+    def __post_init__(self) -> None:
+        if self.motion not in ('walk', 'squat', 'stand'):
+            msg = f'unknown motion {self.motion!r}: expected walk, squat or stand'
+            raise ValueError(msg)
+        for name in ('duration', 'stride_frequency', 'squat_frequency'):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                msg = f'{name} must be positive and finite, got {value!r}'
+                raise ValueError(msg)
+        if not (math.isfinite(self.ramp) and 0.0 <= self.ramp <= self.duration / 2.0):
+            msg = f'ramp must lie within [0, duration / 2], got {self.ramp!r}'
+            raise ValueError(msg)
+
+
+def _smoothstep(u: FloatArray) -> FloatArray:
+    u = np.clip(u, 0.0, 1.0)
+    return u * u * (3.0 - 2.0 * u)
+
+
+def envelope(plan: TrialPlan, t: FloatArray) -> FloatArray:
+    """Amplitude of the motion about standing, 0 to 1, over trial time t [s]."""
+    if plan.ramp == 0.0:
+        return np.where((t >= 0.0) & (t <= plan.duration), 1.0, 0.0)
+    rise = _smoothstep(t / plan.ramp)
+    fall = _smoothstep((plan.duration - t) / plan.ramp)
+    return np.minimum(rise, fall)
+
+
+def joint_angles(plan: TrialPlan, gait: GaitCycle, t: FloatArray,
+                 standing: FloatArray | None = None) -> FloatArray:
+    """Return the reference angles [rad] of the four joints (order :data:`JOINTS`) at t [s].
+
+    Parameters
+    ----------
+    plan : TrialPlan
+        The trial.
+    gait : GaitCycle
+        Normative walking cycle.
+    t : FloatArray
+        Times from the start of the trial [s].
+    standing : FloatArray or None
+        Standing pose (hip, knee) [rad]; default both 0.
+
+    Returns
+    -------
+    FloatArray
+        Shape (len(t), 4).
+
+    """
+    times = np.asarray(t, dtype=float)
+    stand = np.zeros(2) if standing is None else np.asarray(standing, dtype=float)
+    weight = envelope(plan, times)[:, None]
+    if plan.motion == 'walk':
+        phase = times * plan.stride_frequency
+        left = np.column_stack(gait.angles_at(phase))
+        right = np.column_stack(gait.angles_at(phase + 0.5))
+        motion = np.hstack([left, right]) - np.tile(stand, 2)
+    elif plan.motion == 'squat':
+        depth = 0.5 * (1.0 - np.cos(2.0 * math.pi * plan.squat_frequency * times))
+        leg = np.column_stack([depth * plan.squat_hip, depth * plan.squat_knee]) - stand
+        motion = np.hstack([leg, leg])
+    else:
+        motion = np.zeros((len(times), 4))
+    return np.tile(stand, 2) + weight * motion
+
+
+def joint_velocities(plan: TrialPlan, gait: GaitCycle, t: FloatArray, dt: float = 1e-4,
+                     standing: FloatArray | None = None) -> FloatArray:
+    """Return reference angular velocities [rad/s], central differences of joint_angles."""
+    times = np.asarray(t, dtype=float)
+    ahead = joint_angles(plan, gait, times + dt, standing)
+    behind = joint_angles(plan, gait, times - dt, standing)
+    return (ahead - behind) / (2.0 * dt)
