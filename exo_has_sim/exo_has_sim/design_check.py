@@ -40,6 +40,10 @@ class Row:
     finding: str
 
 
+def _meets(ok: bool) -> str:
+    return 'meets' if ok else 'FALLS SHORT of'
+
+
 def _torque(params: HasParameters, pressure: float) -> float:
     return params.pump_displacement * pressure / params.pump_mechanical_efficiency
 
@@ -58,22 +62,28 @@ def design_check(params: HasParameters) -> list[Row]:
     n_max = params.motor_speed_max
     speed = k * n_max
     circuit_speed = params.pump_displacement * n_max / params.area_a
+    circuit = 'meets it too' if circuit_speed >= params.no_load_speed else 'falls short'
     rows.append(Row(
         'no_load_speed', 'no-load extension speed at 4000 r/min (Eq. 14, K n)', 'm/s',
         params.no_load_speed, speed,
-        f'meets the required {params.no_load_speed} m/s. Eq. 14 divides the pump flow by the '
-        f'averaged area (A_A + A_B)/2; a circuit returning the rod side to the tank moves at '
-        f'D_p n / A_A = {circuit_speed:.3f} m/s, which meets it too'))
+        f'{_meets(speed >= params.no_load_speed)} the required {params.no_load_speed} m/s. '
+        'Eq. 14 divides the pump flow by the averaged area (A_A + A_B)/2 of Eq. 10, which adds '
+        "the two chambers' balances as if the rod side returned to the pump; the paper's own "
+        'Eq. 4, with the rod side open to the tank, gives D_p n / A_A = '
+        f'{circuit_speed:.3f} m/s, which {circuit}. The model follows Eq. 10'))
     pressure = params.peak_thrust / params.area_a
     rows.append(Row(
         'pressure_for_peak_thrust', 'rodless pressure for the 1770 N peak thrust', 'Pa',
         params.max_working_pressure, pressure,
-        f'{pressure / 1e6:.1f} MPa, below the {params.max_working_pressure / 1e6:.0f} MPa '
-        'working pressure (the paper value is the limit, not a prediction)'))
+        f'{pressure / 1e6:.1f} MPa, '
+        f'{"below" if pressure <= params.max_working_pressure else "ABOVE"} the '
+        f'{params.max_working_pressure / 1e6:.0f} MPa working pressure (the paper value is the '
+        'limit, not a prediction)'))
     torque_max = _torque(params, params.max_working_pressure)
     rows.append(Row(
         'torque_at_max_pressure', 'motor torque at 18 MPa', 'N m', params.motor_torque_peak,
-        torque_max, f'within the {params.motor_torque_peak} N m peak torque (with a '
+        torque_max, f'{"within" if torque_max <= params.motor_torque_peak else "ABOVE"} the '
+        f'{params.motor_torque_peak} N m peak torque (with a '
         f'{params.pump_mechanical_efficiency:.0%} hydro-mechanical efficiency)'))
     torque_thrust = _torque(params, pressure)
     verdict = 'within' if torque_thrust <= params.motor_torque_nominal else \
@@ -82,16 +92,18 @@ def design_check(params: HasParameters) -> list[Row]:
         'torque_at_peak_thrust', 'motor torque at the 1770 N peak thrust', 'N m',
         params.motor_torque_nominal, torque_thrust,
         f'{verdict} the {params.motor_torque_nominal} N m nominal torque; the thrust is a '
-        f'peak, and the {params.motor_torque_peak} N m peak torque covers it'))
+        f'peak, and the {params.motor_torque_peak} N m peak torque '
+        f'{"covers" if torque_thrust <= params.motor_torque_peak else "does NOT cover"} it'))
     omega = linear.natural_frequency(params)
     fastest = max(abs(p) for p in linear.EQ15_POLES)
     rows.append(Row(
         'natural_frequency', 'omega_n at mid stroke with the 50 kg load (Eq. 13)', 'rad/s',
         None, omega,
         f'{omega / (2 * math.pi):.1f} Hz. The paper gives no value, and its identified Eq. 15 '
-        f'has only real poles (the fastest at {fastest} rad/s): a 0-5 Hz excitation sampled at '
-        '200 Hz cannot identify a hydraulic resonance this high, so Eq. 15 describes the '
-        'measured loop (drive, sensor, filtering), not Eq. 12'))
+        f'has only real poles (the fastest at {fastest} rad/s): a 0-5 Hz excitation, run in '
+        'closed loop under P = 35, excites a resonance this far above its band too little to '
+        'identify it, so Eq. 15 describes the measured loop (drive, sensor, filtering), not '
+        'the hydraulics of Eq. 12'))
     g15 = linear.eq15()
     gain15 = float(abs(g15(1j * 1.0)))  # |G(j w)| w at w = 1 rad/s, inside the integrator band
     required = params.no_load_speed / n_max
@@ -137,7 +149,8 @@ def design_check(params: HasParameters) -> list[Row]:
     rows.append(Row(
         'walking_stroke', f'cylinder stroke over the Winter walking range of the '
         f'{params.joint_type}', 'm', params.walking_stroke, stroke,
-        f'{stroke * 1e3:.1f} mm against {params.walking_stroke * 1e3:.0f} mm: the paper used '
+        f'{stroke * 1e3:.1f} mm against {params.walking_stroke * 1e3:.0f} mm '
+        f'({stroke / params.walking_stroke - 1:+.1%}): the paper used '
         'CGA data (not at hand) and its linkage dimensions are lost with Fig. 7 and Table 1, '
         'so the linkage was chosen for this match; it confirms the geometry, not the data'))
     return rows

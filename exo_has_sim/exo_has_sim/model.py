@@ -207,7 +207,10 @@ def initial_state(params: HasParameters, position: float, load_force: float = 0.
     """Return a state at rest at ``position`` [m] holding ``load_force`` [N].
 
     In assist the pressure carries the load and the motor turns just fast enough to replace the
-    leakage; in free mode the pressure is zero (the load is then not held).
+    leakage; in free mode the pressure is zero (the load is then not held). A load so light that
+    this speed is below ``valve_engage_speed`` (about 130 N on the hip) is not at rest: the
+    spool drifts towards free mode and the load sinks, as with the real valve, whose motor must
+    turn to keep the pressure that holds it in assist.
     """
     y = np.zeros(N_STATE)
     y[X] = position

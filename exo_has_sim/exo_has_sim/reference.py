@@ -85,8 +85,8 @@ def simulate_reference_closed_loop(params: HasParameters, y0: np.ndarray, x_ref:
                                    method: str = 'Radau') -> np.ndarray:
     """Integrate one joint under the sampled PD law of ``simulate_closed_loop``.
 
-    The controller acts every ``period`` on the sampled position, as in the fast simulator
-    (without transport delay); solve_ivp integrates between two actions.
+    The controller acts every ``period`` on the sampled position, as in the fast simulator;
+    solve_ivp integrates between two actions. A transport delay is refused.
 
     Returns
     -------
@@ -94,6 +94,9 @@ def simulate_reference_closed_loop(params: HasParameters, y0: np.ndarray, x_ref:
         States at the controller instants, shape (K + 1, N_STATE).
 
     """
+    if params.effects.transport_delay:
+        msg = 'simulate_reference_closed_loop does not model a transport delay; set it to 0'
+        raise SimulationError(msg)
     prm = model.pack(params)
     derivative = np.empty(model.N_STATE)
     samples = len(x_ref)

@@ -197,7 +197,7 @@ def _open_loop(y0: np.ndarray, prm: np.ndarray, n_cmd: np.ndarray, f_load: np.nd
 @njit(cache=True)
 def _closed_loop(y0: np.ndarray, prm: np.ndarray, x_ref: np.ndarray, v_ref: np.ndarray,
                  f_load: np.ndarray, gains: np.ndarray, period: float,
-                 delay_samples: np.ndarray, atol: np.ndarray, rtol: float,
+                 delay: np.ndarray, atol: np.ndarray, rtol: float,
                  max_step: float, out: np.ndarray, commands: np.ndarray) -> int:
     joints, ns = y0.shape
     samples = x_ref.shape[0]
@@ -209,6 +209,8 @@ def _closed_loop(y0: np.ndarray, prm: np.ndarray, x_ref: np.ndarray, v_ref: np.n
         step = np.array([max_step])
         previous = y[j, model.X]
         limit = prm[j, model.I_NMAX]
+        lag = math.floor(delay[j] / period + 1e-9)
+        shift = delay[j] - lag * period
         for k in range(samples):
             measured = y[j, model.X]
             velocity = (measured - previous) / period if k > 0 else 0.0
@@ -216,10 +218,15 @@ def _closed_loop(y0: np.ndarray, prm: np.ndarray, x_ref: np.ndarray, v_ref: np.n
             command = gains[j, 2] * v_ref[k, j] + gains[j, 0] * (x_ref[k, j] - measured) \
                 + gains[j, 1] * (v_ref[k, j] - velocity)
             commands[k, j] = min(max(command, -limit), limit)
-            index = k - delay_samples[j]
-            applied = commands[index, j] if index >= 0 else y0[j, model.N]
-            taken += _advance(y[j], period, step, applied, f_load[k, j], prm[j], work,
-                              jac, pivots, lu, atol, rtol, max_step)
+            # As in _open_loop: the delayed command changes ``shift`` into the period.
+            first, second = k - lag - 1, k - lag
+            c1 = commands[first, j] if first >= 0 else y0[j, model.N]
+            c2 = commands[second, j] if second >= 0 else y0[j, model.N]
+            if shift > 1e-12:
+                taken += _advance(y[j], shift, step, c1, f_load[k, j], prm[j], work, jac,
+                                  pivots, lu, atol, rtol, max_step)
+            taken += _advance(y[j], period - shift, step, c2, f_load[k, j], prm[j], work, jac,
+                              pivots, lu, atol, rtol, max_step)
             out[k + 1, j] = y[j]
     return taken
 
@@ -327,7 +334,7 @@ def simulate_closed_loop(params: Sequence[HasParameters], y0: np.ndarray, x_ref:
     The controller samples the position every ``period`` and commands
     ``kff v_ref + kp (x_ref - x) + kd (v_ref - dx/dt)`` (dx/dt by backward difference of the
     samples), saturated at the motor's top speed; a joint's transport delay holds its commands
-    back by whole periods.
+    back exactly (the step is cut where a delayed command takes effect).
 
     Parameters
     ----------
@@ -344,7 +351,7 @@ def simulate_closed_loop(params: Sequence[HasParameters], y0: np.ndarray, x_ref:
     if vels.shape[0] != samples or loads.shape[0] != samples:
         raise SimulationError('x_ref, v_ref and f_load must have the same number of samples')
     gain_array = np.ascontiguousarray(np.broadcast_to(np.asarray(gains, float), (joints, 3)))
-    delay = np.array([round(p.effects.transport_delay / period) for p in params], dtype=np.int64)
+    delay = np.array([p.effects.transport_delay for p in params])
     _check_steps(period, max_step, rtol)
     states = np.empty((samples + 1, joints, model.N_STATE))
     commands = np.empty((samples, joints))

@@ -16,7 +16,19 @@ def test_the_table_reproduces_the_papers_figures_and_names_the_discrepancies():
     assert rows['bandwidth_eq15'].model > 4 * 2.54  # Eq. 15 with P = 35 is far too fast
     assert 'not in the units of Eq. 15' in rows['bandwidth_eq15'].finding
     assert 'device units' in rows['velocity_gain'].finding
-    assert 'cannot identify a hydraulic resonance' in rows['natural_frequency'].finding
+    assert 'too little to identify it' in rows['natural_frequency'].finding
+
+
+def test_the_verdicts_follow_the_numbers_for_a_design_that_fails():
+    small = load_parameters('hip').replace(bore_diameter=0.010, rod_diameter=0.006,
+                                           pump_displacement=2.0e-8)
+    rows = {row.id: row for row in design_check(small)}
+    assert rows['pressure_for_peak_thrust'].model > 18e6
+    assert 'ABOVE the 18 MPa' in rows['pressure_for_peak_thrust'].finding
+    assert rows['no_load_speed'].finding.startswith('FALLS SHORT of')
+    good = {row.id: row for row in design_check(load_parameters('hip'))}
+    assert good['no_load_speed'].finding.startswith('meets')
+    assert 'below the 18 MPa' in good['pressure_for_peak_thrust'].finding
 
 
 def test_the_command_prints_the_table_and_writes_json(tmp_path, capsys):

@@ -86,3 +86,23 @@ def test_stepping_a_plant_matches_the_batch_simulation(delay):
                                    for j, p in enumerate(params)]
     with pytest.raises(SimulationError, match='finite'):
         plant.step(np.array([np.nan, 0.0]), loads[0], PERIOD)
+
+
+def test_a_closed_loop_transport_delay_is_applied_exactly_not_rounded_to_samples():
+    period = 0.005
+    x_ref = np.full(200, 0.06)
+    v_ref = np.zeros(200)
+    loads = np.zeros(200)
+    gains = np.array([[35e3, 0.0, 0.0]])
+    y0 = model.initial_state(HIP, 0.05)[None, :]
+    results = {}
+    for delay in (0.0, 0.0024, 0.0049):
+        params = HIP.with_effects(transport_delay=delay)
+        closed = simulate_closed_loop([params], y0, x_ref[:, None], v_ref[:, None], loads,
+                                      gains, period)
+        replay = simulate_open_loop([params], y0, closed.commands, loads, period)
+        np.testing.assert_allclose(closed.position, replay.position, atol=1e-9)
+        results[delay] = closed.position[:, 0]
+    # A sub-sample delay still changes the response (it was once rounded away).
+    assert np.max(np.abs(results[0.0024] - results[0.0])) > 1e-4
+    assert np.max(np.abs(results[0.0049] - results[0.0024])) > 1e-4
