@@ -1,14 +1,15 @@
 """The nonlinear HAS model of Sun et al. (2021), Eqs. 2-8, with the effects it leaves out.
 
-One joint's state is ``[x, v, p_A, n, s]`` followed by six cumulative volumes used to check the
-mass balance:
+One joint's state is ``[x, v, p_A, n, s, void]`` followed by five cumulative volumes used to
+check the mass balance:
 
 - ``x`` cylinder extension from its retracted end [m], ``v`` its velocity [m/s];
 - ``p_A`` rodless-chamber gauge pressure [Pa]; the rod chamber is open to the elastic tank at
   atmospheric pressure (paper, section 3.3: p_i = 0), so p_B = 0;
 - ``n`` motor (= pump) speed [rad/s], following the command through a first-order speed loop;
 - ``s`` compact-valve spool position [-]: 1 assist (pump to rodless chamber), 0 free (both
-  chambers to the tank), moved by the pump's pressure once the motor turns (section 2.3.3).
+  chambers to the tank), moved by the pump's pressure once the motor turns (section 2.3.3);
+- ``void`` volume of the vapour pocket in the rodless chamber [m^3] (see below).
 
 Flow balance of the rodless chamber, the paper's Eq. 10 made dynamic:
 ``(V_A + A_A x) / E * dp/dt = s D_p n_p - s (L_n p + L_n2 p|p|) - L_c p - A_e v - Q_relief
@@ -18,7 +19,8 @@ velocity K n of Eq. 14. Force balance, Eq. 8 with the load force and end stops:
 ``(M_a + M_L) dv/dt = A_A p - B v - F_friction - F_load + F_stop``.
 
 A cavitation floor holds ``p_A`` at the cavitation pressure while the balance would take it
-lower (the missing volume is vapour, counted as cavitation volume). The relief valve passes
+lower: the missing volume becomes a vapour pocket, which a later net inflow must fill before the
+pressure can rise again. The relief valve passes
 ``G_r (p - p_set)`` above its setting; the ``relief_valve`` effect adds an opening from a crack
 pressure below it. All functions are compiled with numba and take the packed parameter vector of
 :func:`pack`.
@@ -34,9 +36,9 @@ from numba import njit
 from exo_has_sim.parameters import HasParameters
 
 # State layout.
-X, V, PA, N, S = 0, 1, 2, 3, 4
-VOL_PUMP, VOL_LEAK, VOL_RELIEF, VOL_FREE, VOL_COMPRESSION, VOL_CAVITATION = 5, 6, 7, 8, 9, 10
-N_DYNAMIC = 5
+X, V, PA, N, S, VOID = 0, 1, 2, 3, 4, 5
+VOL_PUMP, VOL_LEAK, VOL_RELIEF, VOL_FREE, VOL_COMPRESSION = 6, 7, 8, 9, 10
+N_DYNAMIC = 6
 N_STATE = 11
 
 # Packed parameter layout.
@@ -46,6 +48,10 @@ N_STATE = 11
 N_PACKED = 31
 
 ATMOSPHERIC_PRESSURE = 101_325.0  # Pa
+CAVITATION_TIME_CONSTANT = 1.0e-4  # s, relaxation of the pressure onto the cavitation floor
+# A pocket smaller than this counts as none [m^3] (0.6 um of stroke): a solver's perturbation of
+# an empty pocket must not switch the equations.
+VOID_THRESHOLD = 1.0e-10
 AIR_POLYTROPIC_EXPONENT = 1.4
 
 # Valve modes, numbered as exo_has_msgs/msg/HasState.
@@ -169,11 +175,14 @@ def rhs(y: np.ndarray, n_cmd: float, f_load: float, prm: np.ndarray,
     q_relief = relief_flow(p, prm)
     q_free = (1.0 - s) * prm[I_GFREE] * p
     q_motion = prm[I_AE] * v
-    dp = (q_pump - q_leak - q_relief - q_free - q_motion) / capacitance
-    q_cavitation = 0.0
-    if p <= prm[I_PCAV] and dp < 0.0:
-        q_cavitation = -dp * capacitance
-        dp = 0.0
+    q_net = q_pump - q_leak - q_relief - q_free - q_motion
+    dp = q_net / capacitance
+    dvoid = 0.0
+    if y[VOID] > VOID_THRESHOLD or (p <= prm[I_PCAV] and q_net < 0.0):
+        # Vapour pocket: the pressure is held at the floor (pulled back to it quickly after a
+        # numerical overshoot) and the net flow grows or fills the pocket.
+        dp = (prm[I_PCAV] - p) / CAVITATION_TIME_CONSTANT
+        dvoid = capacitance * dp - q_net
     force_stop = 0.0
     if x < 0.0:
         force_stop = max(-prm[I_KSTOP] * x - prm[I_CSTOP] * v, 0.0)
@@ -186,12 +195,12 @@ def rhs(y: np.ndarray, n_cmd: float, f_load: float, prm: np.ndarray,
     dy[PA] = dp
     dy[N] = (command - n) / prm[I_TAU_M]
     dy[S] = (spool_target(n, prm) - s) / prm[I_TAU_S]
+    dy[VOID] = dvoid
     dy[VOL_PUMP] = q_pump
     dy[VOL_LEAK] = q_leak
     dy[VOL_RELIEF] = q_relief
     dy[VOL_FREE] = q_free
     dy[VOL_COMPRESSION] = capacitance * dp
-    dy[VOL_CAVITATION] = q_cavitation
 
 
 @njit(cache=True)
@@ -278,17 +287,22 @@ def jacobian(y: np.ndarray, n_cmd: float, f_load: float, prm: np.ndarray,
     d_free = (0.0, 0.0, (1.0 - s) * prm[I_GFREE], 0.0, -prm[I_GFREE] * p)
     d_cap_x = prm[I_AA] / modulus if inside else 0.0
     d_cap_p = -volume * _bulk_modulus_slope(p, prm) / modulus ** 2
-    clamped = p <= prm[I_PCAV] and q_net < 0.0
-    for j in range(N_DYNAMIC):
+    pocket = y[VOID] > VOID_THRESHOLD or (p <= prm[I_PCAV] and q_net < 0.0)
+    dp_pocket = (prm[I_PCAV] - p) / CAVITATION_TIME_CONSTANT
+    for j in range(S + 1):
         d_net = d_pump[j] - d_leak[j] - d_relief[j] - d_free[j]
         if j == V:
             d_net -= prm[I_AE]
         d_cap = d_cap_x if j == X else (d_cap_p if j == PA else 0.0)
-        if not clamped:
+        if not pocket:
             jac[PA, j] = d_net / capacitance - q_net * d_cap / capacitance ** 2
             jac[VOL_COMPRESSION, j] = d_net
         else:
-            jac[VOL_CAVITATION, j] = -d_net
+            d_dp = -1.0 / CAVITATION_TIME_CONSTANT if j == PA else 0.0
+            d_compression = d_cap * dp_pocket + capacitance * d_dp
+            jac[PA, j] = d_dp
+            jac[VOL_COMPRESSION, j] = d_compression
+            jac[VOID, j] = d_compression - d_net
         jac[VOL_PUMP, j] = d_pump[j]
         jac[VOL_LEAK, j] = d_leak[j]
         jac[VOL_RELIEF, j] = d_relief[j]

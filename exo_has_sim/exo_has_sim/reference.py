@@ -16,8 +16,25 @@ from exo_has_sim import model
 from exo_has_sim.errors import SimulationError
 from exo_has_sim.parameters import HasParameters
 
-# Absolute tolerance per state: m, m/s, Pa, rad/s, -, then volumes in m^3.
-_ATOL = np.array([1e-10, 1e-9, 1e-2, 1e-7, 1e-10, *([1e-16] * 6)])
+
+def _jacobian_function(prm: np.ndarray, command: float, load: float):  # type: ignore[no-untyped-def]
+    """Full Jacobian for solve_ivp (cumulative volumes feed nothing back: zero columns).
+
+    It only steers the implicit solver's Newton iterations, not its accuracy.
+    """
+    dynamic = np.empty((model.N_STATE, model.N_DYNAMIC))
+
+    def jac(_t: float, state: np.ndarray) -> np.ndarray:
+        model.jacobian(state, command, load, prm, dynamic)
+        full = np.zeros((model.N_STATE, model.N_STATE))
+        full[:, :model.N_DYNAMIC] = dynamic
+        return full
+
+    return jac
+
+
+# Absolute tolerance per state: m, m/s, Pa, rad/s, -, m^3, then volumes in m^3.
+_ATOL = np.array([1e-10, 1e-9, 1e-2, 1e-7, 1e-10, 1e-16, *([1e-16] * 5)])
 
 
 def simulate_reference(params: HasParameters, y0: np.ndarray, n_cmd: np.ndarray,
@@ -68,7 +85,8 @@ def simulate_reference(params: HasParameters, y0: np.ndarray, n_cmd: np.ndarray,
             model.rhs(state, c, f, prm, derivative)
             return np.array(derivative)
 
-        solution = solve_ivp(fun, (t0, t1), y, method=method, rtol=rtol, atol=_ATOL)
+        jac = _jacobian_function(prm, command, load) if method in ('Radau', 'BDF') else None
+        solution = solve_ivp(fun, (t0, t1), y, method=method, rtol=rtol, atol=_ATOL, jac=jac)
         if not solution.success:
             msg = f'solve_ivp failed at t = {t0:.4f} s: {solution.message}'
             raise SimulationError(msg)
@@ -118,8 +136,10 @@ def simulate_reference_closed_loop(params: HasParameters, y0: np.ndarray, x_ref:
             model.rhs(state, c, f, prm, derivative)
             return np.array(derivative)
 
+        jac = _jacobian_function(prm, command, float(f_load[k])) \
+            if method in ('Radau', 'BDF') else None
         solution = solve_ivp(fun, (k * period, (k + 1) * period), y, method=method, rtol=rtol,
-                             atol=_ATOL)
+                             atol=_ATOL, jac=jac)
         if not solution.success:
             msg = f'solve_ivp failed at t = {k * period:.4f} s: {solution.message}'
             raise SimulationError(msg)

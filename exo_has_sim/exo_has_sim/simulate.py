@@ -5,22 +5,24 @@ about 0.1 ms, the end stops ring at 100 Hz), so an explicit method would need st
 microseconds. The integrator is the two-stage, second-order, L-stable Rosenbrock method ROS2
 (Verwer, Spee, Blom, Hundsdorfer 1999): linearly implicit (no Newton iterations), with the
 analytic Jacobian of the five dynamic states (:func:`exo_has_sim.model.jacobian`) and an
-in-place 5x5 LU solve, compiled with numba. The step size is controlled with the method's
+in-place 6x6 LU solve, compiled with numba. The step size is controlled with the method's
 embedded first-order solution: a fixed 1 ms step overshot by tens of MPa where the relief
 valve opens within a step, and a fixed step small enough everywhere cost several times more.
 bench/simulator.py measures speed and error against solve_ivp. Held inputs change only at
 interval boundaries (sample instants, and those shifted by a transport delay), where steps
-are cut. The six
+are cut. The five
 cumulative-volume states are carried through the same stages, so the mass balance holds to
 rounding.
 """
 
 from __future__ import annotations
 
+import hashlib
 import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from numba import njit
@@ -29,20 +31,45 @@ from exo_has_sim import model
 from exo_has_sim.errors import SimulationError
 from exo_has_sim.parameters import HasParameters
 
+
+def _drop_stale_compiled_code() -> None:
+    """Delete this module's numba cache when model.py changed since it was compiled.
+
+    numba invalidates a cached function only when its own file changes, but the functions here
+    compile the model's right-hand side into themselves: after an edit of model.py they would
+    go on running the old model.
+    """
+    here = Path(__file__).resolve().parent
+    cache = here / '__pycache__'
+    stamp = cache / 'simulate.model-source.sha256'
+    digest = hashlib.sha256((here / 'model.py').read_bytes()).hexdigest()
+    try:
+        if stamp.is_file() and stamp.read_text() == digest:
+            return
+        for compiled in cache.glob('simulate.*.nb[ic]'):
+            compiled.unlink()
+        cache.mkdir(exist_ok=True)
+        stamp.write_text(digest)
+    except OSError:
+        pass  # a read-only install: numba then compiles in memory or keeps its own cache
+
+
+_drop_stale_compiled_code()
+
 GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
 #: Default largest integration step [s].
 DEFAULT_STEP = 2.0e-3
 #: Default relative tolerance of the step-size control (bench/simulator.py: about 0.1 to 0.2 mm
 #: of position error in walking against solve_ivp at rtol 1e-10, where 0.65 mm is allowed).
 DEFAULT_RTOL = 1.0e-2
-# Absolute tolerance of each dynamic state (m, m/s, Pa, rad/s, -).
-_ATOL = np.array([1e-6, 1e-4, 1e4, 1e-1, 1e-3])
+# Absolute tolerance of each dynamic state (m, m/s, Pa, rad/s, -, m^3).
+_ATOL = np.array([1e-6, 1e-4, 1e4, 1e-1, 1e-3, 1e-9])
 
 
 @njit(cache=True)
-def _lu5(a: np.ndarray, pivots: np.ndarray) -> None:
-    """LU-factorise a 5x5 matrix in place with partial pivoting."""
-    n = 5
+def _lu(a: np.ndarray, pivots: np.ndarray) -> None:
+    """LU-factorise a small square matrix in place with partial pivoting."""
+    n = a.shape[0]
     for col in range(n):
         pivot = col
         for row in range(col + 1, n):
@@ -62,9 +89,9 @@ def _lu5(a: np.ndarray, pivots: np.ndarray) -> None:
 
 
 @njit(cache=True)
-def _lu_solve5(a: np.ndarray, pivots: np.ndarray, b: np.ndarray) -> None:
-    """Solve with the factors of :func:`_lu5`; b becomes the solution."""
-    n = 5
+def _lu_solve(a: np.ndarray, pivots: np.ndarray, b: np.ndarray) -> None:
+    """Solve with the factors of :func:`_lu`; b becomes the solution."""
+    n = a.shape[0]
     for col in range(n):  # the factorisation swapped whole rows: permute b first
         pivot = pivots[col]
         if pivot != col:
@@ -89,7 +116,7 @@ def _ros2_trial(y: np.ndarray, h: float, n_cmd: float, f_load: float, prm: np.nd
                 atol: np.ndarray, rtol: float) -> float:
     """One ROS2 step of length h from y into work[_YN]; return the scaled error estimate."""
     ns = y.shape[0]
-    nd = 5
+    nd = model.N_DYNAMIC
     f0, fp, yp, k1, k2, yn = work[_F0], work[_FP], work[_YP], work[_K1], work[_K2], work[_YN]
     model.rhs_and_jacobian(y, n_cmd, f_load, prm, f0, jac)
     gh = GAMMA * h
@@ -97,10 +124,10 @@ def _ros2_trial(y: np.ndarray, h: float, n_cmd: float, f_load: float, prm: np.nd
         for k in range(nd):
             lu[i, k] = -gh * jac[i, k]
         lu[i, i] += 1.0
-    _lu5(lu, pivots)
+    _lu(lu, pivots)
     for i in range(nd):
         k1[i] = f0[i]
-    _lu_solve5(lu, pivots, k1[:nd])
+    _lu_solve(lu, pivots, k1[:nd])
     for i in range(nd, ns):
         acc = f0[i]
         for k in range(nd):
@@ -111,7 +138,7 @@ def _ros2_trial(y: np.ndarray, h: float, n_cmd: float, f_load: float, prm: np.nd
     model.rhs(yp, n_cmd, f_load, prm, fp)
     for i in range(nd):
         k2[i] = fp[i] - 2.0 * k1[i]
-    _lu_solve5(lu, pivots, k2[:nd])
+    _lu_solve(lu, pivots, k2[:nd])
     for i in range(nd, ns):
         acc = fp[i] - 2.0 * k1[i]
         for k in range(nd):
@@ -161,8 +188,9 @@ def _advance(y: np.ndarray, span: float, step: np.ndarray, n_cmd: float, f_load:
 @njit(cache=True)
 def _workspace(ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Allocate the work arrays of :func:`_advance` for a state of length ns."""
-    return (np.empty((6, ns)), np.empty((ns, 5)), np.empty(5, dtype=np.int64),
-            np.empty((5, 5)))
+    nd = model.N_DYNAMIC
+    return (np.empty((6, ns)), np.empty((ns, nd)), np.empty(nd, dtype=np.int64),
+            np.empty((nd, nd)))
 
 
 @njit(cache=True)

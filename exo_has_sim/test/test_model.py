@@ -55,7 +55,7 @@ def test_with_the_motor_stopped_the_external_force_moves_the_cylinder():
 
 def balance_error(states, params):
     first, last = states[0], states[-1]
-    pumped = last[model.VOL_PUMP] + last[model.VOL_CAVITATION]
+    pumped = last[model.VOL_PUMP] + last[model.VOID] - first[model.VOID]
     accounted = params.flow_area * (last[model.X] - first[model.X]) \
         + last[model.VOL_COMPRESSION] + last[model.VOL_LEAK] + last[model.VOL_RELIEF] \
         + last[model.VOL_FREE]
@@ -73,7 +73,6 @@ def test_the_mass_balance_closes_over_a_run_through_every_valve_mode():
     fast = simulate_open_loop([params], y0[None, :], commands[:, None], loads, period)
     modes = {model.valve_mode(s, model.pack(params)) for s in fast.states[:, 0]}
     assert modes == {model.VALVE_FREE, model.VALVE_ASSIST, model.VALVE_RELIEF}
-    assert fast.states[-1, 0, model.VOL_CAVITATION] >= 0.0
     assert balance_error(fast.states[:, 0], params) < 1e-6
     reference = simulate_reference(params, y0, commands, loads, period)
     assert balance_error(reference, params) < 1e-6
@@ -119,8 +118,9 @@ def test_a_pump_dead_zone_stops_small_commands():
 def command_to_velocity_lag(params, period=0.001, duration=4.0):
     rng = np.random.default_rng(3)
     steps = rng.normal(0.0, 150.0, round(duration / 0.05)).repeat(round(0.05 / period))
-    y0 = model.initial_state(params, 0.065)
-    velocity = run(params, y0, steps, 0.0, duration, period).states[1:, 0, model.V]
+    # Under the rig's load, so that retracting never draws a vapour pocket.
+    y0 = model.initial_state(params, 0.065, LOAD)
+    velocity = run(params, y0, steps, LOAD, duration, period).states[1:, 0, model.V]
     a = steps - steps.mean()
     b = velocity - velocity.mean()
     correlation = np.correlate(b, a, mode='full')[len(a) - 1:len(a) - 1 + 200]
@@ -181,12 +181,12 @@ def test_the_analytic_jacobian_is_the_derivative_of_the_model():
                               relief_crack_conductance=2e-12, entrained_air=0.01)
     prm = model.pack(params)
     rng = np.random.default_rng(0)
-    steps = (1e-8, 1e-8, 1e-1, 1e-6, 1e-8)
+    steps = (1e-8, 1e-8, 1e-1, 1e-6, 1e-8, 1e-12)
     for _ in range(200):
         y = np.zeros(model.N_STATE)
         y[:model.N_DYNAMIC] = (rng.uniform(-0.001, 0.131), rng.normal(0.0, 0.1),
                                rng.uniform(-0.08e6, 19e6), rng.normal(0.0, 100.0),
-                               rng.uniform(0.0, 1.0))
+                               rng.uniform(0.0, 1.0), 0.0)
         analytic = np.zeros((model.N_STATE, model.N_DYNAMIC))
         model.jacobian(y, 50.0, LOAD, prm, analytic)
         numeric = np.zeros_like(analytic)
@@ -200,3 +200,25 @@ def test_the_analytic_jacobian_is_the_derivative_of_the_model():
             numeric[:, j] = (f_plus - f_minus) / (2 * step)
         row_scale = np.abs(numeric).max(axis=1, keepdims=True) + 1e-20
         assert np.max(np.abs(analytic - numeric) / row_scale) < 1e-4
+
+
+def test_a_vapour_pocket_must_be_refilled_before_the_pressure_rises_again():
+    floor = HIP.cavitation_pressure
+    y0 = model.initial_state(HIP, 0.08, 50.0)
+    period = 0.001
+    commands = np.concatenate([np.full(100, -400.0), np.full(600, 100.0)])
+    result = simulate_open_loop([HIP], y0[None, :], commands[:, None],
+                                np.full(len(commands), 50.0), period)
+    states = result.states[:, 0]
+    void = states[:, model.VOID]
+    peak = int(np.argmax(void))
+    assert void[peak] > 1e-7  # the fast retraction under a light load opened a pocket
+    emptied = peak + int(np.argmax(void[peak:] <= model.VOID_THRESHOLD))
+    # Refilling takes its time (the pump delivers about 6 uL per ms at 100 rad/s) ...
+    assert (emptied - peak) * period > 0.1
+    # ... the pressure stays at the floor meanwhile, and only then rises to carry the load.
+    np.testing.assert_allclose(states[peak:emptied - 5, model.PA], floor, atol=100.0)
+    first_rise = int(np.argmax(states[peak:, model.PA] > 1e5)) + peak
+    assert first_rise >= emptied - 5
+    assert states[-1, model.PA] > 0.0
+    assert balance_error(states, HIP) < 1e-6

@@ -72,10 +72,12 @@ def test_stepping_a_plant_matches_the_batch_simulation(delay):
     knee = load_parameters('knee').with_effects(transport_delay=delay)
     hip = HIP.with_effects(transport_delay=delay / 2)
     params = [hip, knee]
-    y0 = np.stack([model.initial_state(hip, 0.05, 400.0), model.initial_state(knee, 0.06)])
+    # Loaded, as on the rig: unloaded retraction opens vapour pockets, whose on/off switching
+    # amplifies rounding differences between the two ways of cutting the steps.
+    y0 = np.stack([model.initial_state(hip, 0.05, 400.0), model.initial_state(knee, 0.06, 400.0)])
     rng = np.random.default_rng(1)
     commands = rng.normal(0.0, 80.0, (400, 2))
-    loads = np.column_stack([np.full(400, 400.0), np.zeros(400)])
+    loads = np.full((400, 2), 400.0)
     batch = simulate_open_loop(params, y0, commands, loads, PERIOD)
     plant = PlantSimulator(params, y0)
     for k in range(400):
