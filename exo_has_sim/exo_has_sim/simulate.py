@@ -194,6 +194,30 @@ def _workspace(ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 
 @njit(cache=True)
+def _advance_period(y: np.ndarray, commands: np.ndarray, joint: int, k: int, lag: int,
+                    shift: float, initial: float, period: float, step: np.ndarray,
+                    f_load: float, prm: np.ndarray, work: np.ndarray, jac: np.ndarray,
+                    pivots: np.ndarray, lu: np.ndarray, atol: np.ndarray, rtol: float,
+                    max_step: float) -> int:
+    """Advance one joint over sample period k under its delayed, held commands.
+
+    A command given at sample i acts from ``i * period + delay``, with ``delay = lag * period
+    + shift``: within period k, command k - lag - 1 acts for ``shift`` seconds, then k - lag.
+    Before the first command the drive follows ``initial``.
+    """
+    first, second = k - lag - 1, k - lag
+    c1 = commands[first, joint] if first >= 0 else initial
+    c2 = commands[second, joint] if second >= 0 else initial
+    taken = 0
+    if shift > 1e-12:
+        taken += _advance(y, shift, step, c1, f_load, prm, work, jac, pivots, lu, atol, rtol,
+                          max_step)
+    taken += _advance(y, period - shift, step, c2, f_load, prm, work, jac, pivots, lu, atol,
+                      rtol, max_step)
+    return taken
+
+
+@njit(cache=True)
 def _open_loop(y0: np.ndarray, prm: np.ndarray, n_cmd: np.ndarray, f_load: np.ndarray,
                period: float, delay: np.ndarray, atol: np.ndarray,
                rtol: float, max_step: float, out: np.ndarray) -> int:
@@ -205,19 +229,12 @@ def _open_loop(y0: np.ndarray, prm: np.ndarray, n_cmd: np.ndarray, f_load: np.nd
     taken = 0
     for j in range(joints):
         step = np.array([max_step])
-        # A delayed command changes once inside each period, ``shift`` after its start.
         lag = math.floor(delay[j] / period + 1e-9)
         shift = delay[j] - lag * period
         for k in range(samples):
-            first = k - lag - 1
-            second = k - lag
-            c1 = n_cmd[first, j] if first >= 0 else y0[j, model.N]
-            c2 = n_cmd[second, j] if second >= 0 else y0[j, model.N]
-            if shift > 1e-12:
-                taken += _advance(y[j], shift, step, c1, f_load[k, j], prm[j], work,
-                                  jac, pivots, lu, atol, rtol, max_step)
-            taken += _advance(y[j], period - shift, step, c2, f_load[k, j], prm[j],
-                              work, jac, pivots, lu, atol, rtol, max_step)
+            taken += _advance_period(y[j], n_cmd, j, k, lag, shift, y0[j, model.N], period,
+                                     step, f_load[k, j], prm[j], work, jac, pivots, lu, atol,
+                                     rtol, max_step)
             out[k + 1, j] = y[j]
     return taken
 
@@ -246,15 +263,9 @@ def _closed_loop(y0: np.ndarray, prm: np.ndarray, x_ref: np.ndarray, v_ref: np.n
             command = gains[j, 2] * v_ref[k, j] + gains[j, 0] * (x_ref[k, j] - measured) \
                 + gains[j, 1] * (v_ref[k, j] - velocity)
             commands[k, j] = min(max(command, -limit), limit)
-            # As in _open_loop: the delayed command changes ``shift`` into the period.
-            first, second = k - lag - 1, k - lag
-            c1 = commands[first, j] if first >= 0 else y0[j, model.N]
-            c2 = commands[second, j] if second >= 0 else y0[j, model.N]
-            if shift > 1e-12:
-                taken += _advance(y[j], shift, step, c1, f_load[k, j], prm[j], work, jac,
-                                  pivots, lu, atol, rtol, max_step)
-            taken += _advance(y[j], period - shift, step, c2, f_load[k, j], prm[j], work, jac,
-                              pivots, lu, atol, rtol, max_step)
+            taken += _advance_period(y[j], commands, j, k, lag, shift, y0[j, model.N], period,
+                                     step, f_load[k, j], prm[j], work, jac, pivots, lu, atol,
+                                     rtol, max_step)
             out[k + 1, j] = y[j]
     return taken
 
