@@ -24,6 +24,12 @@ setup(
     license='Apache-2.0',
     tests_require=['pytest'],
     entry_points={
-        'console_scripts': [],
+        'console_scripts': [
+            'pd_controller = exo_has_control.pd_controller:main',
+            'gait_publisher = exo_has_control.gait_publisher:main',
+        ],
+        'exo_has.commands': [
+            'demo = exo_has_control.demo:main',
+        ],
     },
 )

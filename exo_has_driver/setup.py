@@ -24,6 +24,8 @@ setup(
     license='Apache-2.0',
     tests_require=['pytest'],
     entry_points={
-        'console_scripts': [],
+        'console_scripts': [
+            'watchdog = exo_has_driver.watchdog:main',
+        ],
     },
 )

@@ -28,10 +28,12 @@ setup(
             'exo-has = exo_has_runtime.cli:main',
             'command_talker = exo_has_runtime.demo.command_talker:main',
             'state_echo = exo_has_runtime.demo.state_echo:main',
+            'recorder = exo_has_runtime.recorder:main',
         ],
         'exo_has.commands': [
-            'demo = exo_has_runtime.demo.session:main',
             'dds-config = exo_has_runtime.dds_config:main',
+            'replay = exo_has_runtime.replay:main',
+            'bag = exo_has_runtime.bag:main',
         ],
     },
 )

@@ -26,7 +26,9 @@ setup(
     license='Apache-2.0',
     tests_require=['pytest'],
     entry_points={
-        'console_scripts': [],
+        'console_scripts': [
+            'plant = exo_has_sim.plant_node:main',
+        ],
         'exo_has.commands': [
             'design-check = exo_has_sim.design_check:main',
         ],

@@ -128,3 +128,102 @@ def joint_velocities(plan: TrialPlan, gait: GaitCycle, t: FloatArray, dt: float 
     ahead = joint_angles(plan, gait, times + dt, standing)
     behind = joint_angles(plan, gait, times - dt, standing)
     return (ahead - behind) / (2.0 * dt)
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """Trials run back to back from standing, then standing until stopped.
+
+    Attributes
+    ----------
+    plans : tuple[TrialPlan, ...]
+        The trials, in order.
+    standing : tuple[float, float]
+        Standing pose (hip, knee) [rad] before, between and after the trials.
+
+    """
+
+    plans: tuple[TrialPlan, ...]
+    standing: tuple[float, float] = (0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        if not self.plans:
+            msg = 'a schedule needs at least one trial'
+            raise ValueError(msg)
+
+    @property
+    def starts(self) -> FloatArray:
+        """Start time of each trial from the start of the schedule [s]."""
+        durations = np.array([plan.duration for plan in self.plans])
+        return np.concatenate([[0.0], np.cumsum(durations)[:-1]])
+
+    @property
+    def duration(self) -> float:
+        """Length of all trials together [s]."""
+        return float(sum(plan.duration for plan in self.plans))
+
+    def trial_at(self, t: float) -> int:
+        """Index of the trial running at t [s], or -1 before the first and after the last."""
+        if t < 0.0 or t >= self.duration:
+            return -1
+        return int(np.searchsorted(self.starts, t, side='right') - 1)
+
+    def references(self, gait: GaitCycle, t: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Angles [rad] and angular velocities [rad/s] of the four joints at times t [s].
+
+        Each trial starts and ends standing, so the references are continuous across trials.
+        """
+        times = np.atleast_1d(np.asarray(t, dtype=float))
+        stand = np.array(self.standing)
+        angles = np.tile(np.tile(stand, 2), (len(times), 1))
+        rates = np.zeros((len(times), 4))
+        for plan, start in zip(self.plans, self.starts, strict=True):
+            inside = (times >= start) & (times < start + plan.duration)
+            if np.any(inside):
+                local = times[inside] - start
+                angles[inside] = joint_angles(plan, gait, local, stand)
+                rates[inside] = joint_velocities(plan, gait, local, standing=stand)
+        return angles, rates
+
+
+class ReferenceTable:
+    """A schedule's references sampled ahead, one block at a time, for a real-time publisher.
+
+    Evaluating the splines for every sample costs about half a millisecond; a block of one
+    second at ``step`` is evaluated at once, and samples in between are interpolated linearly.
+
+    Parameters
+    ----------
+    schedule : Schedule
+        The trials.
+    gait : GaitCycle
+        Normative walking cycle.
+    step : float
+        Grid step [s]; 1 ms keeps the interpolation error of the walking references below
+        1e-4 rad.
+
+    """
+
+    def __init__(self, schedule: Schedule, gait: GaitCycle, step: float = 1e-3) -> None:
+        self.schedule = schedule
+        self.gait = gait
+        self.step = step
+        self._per_block = round(1.0 / step)
+        self._block = -1
+        self._angles = np.zeros((0, 4))
+        self._rates = np.zeros((0, 4))
+
+    def sample(self, t: float) -> tuple[list[float], list[float]]:
+        """Angles [rad] and angular velocities [rad/s] of the four joints at t [s]."""
+        index = t / self.step
+        block = int(index // self._per_block)
+        if block != self._block:
+            grid = (block * self._per_block + np.arange(self._per_block + 1.0)) * self.step
+            self._angles, self._rates = self.schedule.references(self.gait, grid)
+            self._block = block
+        local = index - block * self._per_block
+        k = min(int(local), self._per_block - 1)
+        w = local - k
+        angles = (1.0 - w) * self._angles[k] + w * self._angles[k + 1]
+        rates = (1.0 - w) * self._rates[k] + w * self._rates[k + 1]
+        return [float(a) for a in angles], [float(r) for r in rates]

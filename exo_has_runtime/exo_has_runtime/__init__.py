@@ -104,8 +104,15 @@ else:
     IntegerRange = get_message('rcl_interfaces/msg/IntegerRange')
     ParameterDescriptor = get_message('rcl_interfaces/msg/ParameterDescriptor')
 
+#: What a node's constructor raises on a bad configuration (an unknown name, a parameter of the
+#: wrong type or out of range): ``main()`` logs it and exits non-zero instead of a traceback.
+STARTUP_ERRORS: tuple[type[Exception], ...] = (
+    ValueError, TypeError, LookupError, OSError, InvalidParameterTypeException,
+    InvalidParameterValueException)
+
 __all__ = [
-    'BACKEND', 'Clock', 'ClockType', 'Duration', 'DurabilityPolicy', 'ExternalShutdownException',
+    'BACKEND', 'STARTUP_ERRORS',
+    'Clock', 'ClockType', 'Duration', 'DurabilityPolicy', 'ExternalShutdownException',
     'FloatingPointRange', 'HistoryPolicy', 'IntegerRange', 'InvalidParameterTypeException',
     'InvalidParameterValueException', 'Node', 'Parameter', 'ParameterDescriptor',
     'ParameterNotDeclaredException', 'QoSProfile', 'ReliabilityPolicy', 'SetParametersResult',

@@ -65,3 +65,26 @@ class ParameterImmutableException(ParameterException):
 
 class ExternalShutdownException(RuntimeSeamError):
     """The context was shut down from outside (a signal or another thread) while spinning."""
+
+
+class BagError(RuntimeSeamError):
+    """A bag that cannot be written, read or recovered."""
+
+
+class BagNotFoundError(BagError, FileNotFoundError):
+    """A bag path that does not exist."""
+
+    def __str__(self) -> str:  # OSError would format its arguments as a tuple
+        return str(self.args[0]) if self.args else ''
+
+
+class MalformedBagError(BagError, ValueError):
+    """Files that are not a readable rosbag2 bag, or not an MCAP file at all."""
+
+
+class UnfinishedBagError(BagError):
+    """A bag its writer never closed (no metadata.yaml): it must be recovered first."""
+
+
+class ReplayError(RuntimeSeamError, ValueError):
+    """Replay options that cannot be honoured: a rate that is not positive, an unknown topic."""

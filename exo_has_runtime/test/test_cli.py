@@ -1,10 +1,9 @@
-import subprocess
-import sys
-import tempfile
+import time
 import xml.etree.ElementTree as ET
 
 from exo_has_runtime.cli import main, subcommands
 from exo_has_runtime.dds_config import LOOPBACK_CONFIG
+from exo_has_runtime.testing.processes import NodeProcess
 
 
 def test_subcommands_are_gathered_from_the_installed_packages():
@@ -32,13 +31,13 @@ def test_the_printed_dds_config_is_the_loopback_configuration(capsys):
     assert domain.find('Discovery/Peers/Peer').get('address') == 'localhost'
 
 
-def test_the_main_job_runs_two_node_processes_that_exchange_commands_and_states():
-    result = subprocess.run(
-        [sys.executable, '-m', 'exo_has_runtime.cli', 'demo', '--duration', '2.5'],
-        capture_output=True, text=True, timeout=60, cwd=tempfile.gettempdir(), check=False)
-    output = result.stdout + result.stderr
-    assert result.returncode == 0, output
-    assert result.stdout.rstrip().endswith('exo-has demo: done')
+def test_the_demonstration_nodes_exchange_commands_and_states_for_every_joint():
+    with NodeProcess('exo_has_runtime.demo.state_echo'):
+        time.sleep(1.0)  # let the echo subscribe first
+        talker = NodeProcess('exo_has_runtime.demo.command_talker',
+                             ['--ros-args', '-p', 'duration:=2.5'])
+        assert talker.wait(timeout_s=60) == 0, talker.output
+    output = talker.output
     reports = [line for line in output.splitlines() if 'states received' in line]
     assert reports, output
     sent = int(reports[-1].split('commands sent ')[1].split(',')[0])

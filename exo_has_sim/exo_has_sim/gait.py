@@ -3,6 +3,8 @@
 The shipped table is Winter's normal-cadence adult ensemble average (see data/README.md); any
 CSV of the same shape can be loaded: a header row naming the columns ``cycle_percent``,
 ``hip_angle`` and ``knee_angle`` (degrees, flexion positive), or Winter's layout as shipped.
+Optional columns ``hip_moment`` and ``knee_moment`` [N m/kg, extensor positive] are read too
+where present (Winter's table has them).
 """
 
 from __future__ import annotations
@@ -37,6 +39,9 @@ class GaitCycle:
         Flexion angles [rad].
     source : str
         Where the data came from.
+    hip_moment, knee_moment : np.ndarray or None
+        Net joint moments per body mass [N m/kg], extensor positive (Winter's convention),
+        where the table has them.
 
     """
 
@@ -44,6 +49,8 @@ class GaitCycle:
     hip_angle: FloatArray
     knee_angle: FloatArray
     source: str
+    hip_moment: FloatArray | None = None
+    knee_moment: FloatArray | None = None
 
     @cached_property
     def _splines(self) -> tuple[CubicSpline, CubicSpline]:
@@ -81,24 +88,24 @@ def load_gait_cycle(path: str | Path = WINTER) -> GaitCycle:
     except OSError as exc:
         msg = f'cannot read gait table {source}: {exc.strerror}'
         raise ParameterError(msg) from exc
-    columns = _find_columns(rows, source)
-    header_index, cycle_col, hip_col, knee_col = columns
-    values: list[tuple[float, float, float]] = []
+    header_index, columns = _find_columns(rows, source)
+    cycle_col = columns[0]
+    values: list[tuple[float, ...]] = []
     for number, row in enumerate(rows[header_index + 1:], start=header_index + 2):
         cells = [c.strip() for c in row]
-        if not any(cells) or len(cells) <= max(cycle_col, hip_col, knee_col):
+        if not any(cells) or len(cells) <= max(columns):
             continue
         if not cells[cycle_col] or not _is_number(cells[cycle_col]):
             continue  # a units row or a trailing note
         try:
-            triple = (float(cells[cycle_col]), float(cells[hip_col]), float(cells[knee_col]))
+            fields = tuple(float(cells[col]) for col in columns)
         except ValueError as exc:
             msg = f'{source}:{number}: not a number: {exc}'
             raise ParameterError(msg) from exc
-        if not all(math.isfinite(v) for v in triple):
+        if not all(math.isfinite(v) for v in fields):
             msg = f'{source}:{number}: NaN or infinite value'
             raise ParameterError(msg)
-        values.append(triple)
+        values.append(fields)
     if len(values) < 5:
         msg = f'{source}: fewer than 5 rows of data'
         raise ParameterError(msg)
@@ -107,10 +114,12 @@ def load_gait_cycle(path: str | Path = WINTER) -> GaitCycle:
     if np.any(np.diff(cycle) <= 0) or cycle[0] < 0 or cycle[-1] > 100 + 1e-9:
         msg = f'{source}: the gait cycle column must increase within 0 to 100 %'
         raise ParameterError(msg)
-    if np.max(np.abs(data[:, 1:])) < 3.0:
+    if np.max(np.abs(data[:, 1:3])) < 3.0:
         msg = f'{source}: angles span less than 3 units: they look like radians; give degrees'
         raise ParameterError(msg)
-    return GaitCycle(cycle, np.radians(data[:, 1]), np.radians(data[:, 2]), str(source))
+    hip_moment, knee_moment = (data[:, 3], data[:, 4]) if data.shape[1] == 5 else (None, None)
+    return GaitCycle(cycle, np.radians(data[:, 1]), np.radians(data[:, 2]), str(source),
+                     hip_moment, knee_moment)
 
 
 def _is_number(text: str) -> bool:
@@ -121,11 +130,14 @@ def _is_number(text: str) -> bool:
     return True
 
 
-def _find_columns(rows: list[list[str]], source: Path) -> tuple[int, int, int, int]:
+def _find_columns(rows: list[list[str]], source: Path) -> tuple[int, list[int]]:
+    """Return the header row and the columns: cycle, hip, knee (and both moments if present)."""
     aliases = {
         'cycle': ('cycle_percent', '%gait cycle', 'gait_cycle', 'percent'),
         'hip': ('hip_angle', 'hip angle'),
         'knee': ('knee_angle', 'knee angle'),
+        'hip_moment': ('hip_moment', 'hip moment'),
+        'knee_moment': ('knee_moment', 'knee moment'),
     }
     for index, row in enumerate(rows):
         names = [cell.strip().lower() for cell in row]
@@ -135,8 +147,11 @@ def _find_columns(rows: list[list[str]], source: Path) -> tuple[int, int, int, i
                 if name in options:
                     found[key] = col
                     break
-        if len(found) == 3:
-            return index, found['cycle'], found['hip'], found['knee']
+        if all(key in found for key in ('cycle', 'hip', 'knee')):
+            keys = ['cycle', 'hip', 'knee']
+            if 'hip_moment' in found and 'knee_moment' in found:
+                keys += ['hip_moment', 'knee_moment']
+            return index, [found[key] for key in keys]
     msg = (f'{source}: no header row with columns cycle_percent, hip_angle and knee_angle '
            '(degrees)')
     raise ParameterError(msg)

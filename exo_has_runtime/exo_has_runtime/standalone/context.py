@@ -83,6 +83,10 @@ class GraphEndpoint:
     type_name: str
     participant: bytes
     is_writer: bool
+    #: The endpoint's DDS QoS (cyclonedds.qos.Qos), None when discovery did not carry it.
+    qos: Any = None
+    #: The endpoint's GUID, which is its ROS gid.
+    key: bytes = b''
 
 
 @dataclass
@@ -333,7 +337,7 @@ class Context:
                     self._graph[key] = GraphEndpoint(
                         sample.topic_name, sample.type_name,
                         bytes(sample.participant_key.bytes),
-                        reader.topic is BuiltinTopicDcpsPublication)
+                        reader.topic is BuiltinTopicDcpsPublication, sample.qos, key)
             self._warn_type_mismatches()
 
     def _warn_type_mismatches(self) -> None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import itertools
 import struct
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 from cyclonedds._clayer import ddspy_take, ddspy_write
@@ -40,7 +41,7 @@ from exo_has_runtime.standalone.parameters import (
     SetParametersCallback,
     SetParametersResult,
 )
-from exo_has_runtime.standalone.qos import QoSProfile, dds_qos, qos_from_depth
+from exo_has_runtime.standalone.qos import QoSProfile, dds_qos, profile_from_dds, qos_from_depth
 
 _NEW_SAMPLES = SampleState.Any | ViewState.Any | InstanceState.Any
 _TAKE_BATCH = 64
@@ -147,6 +148,22 @@ class Subscription:
     def destroy(self) -> bool:
         """Destroy the subscription (rclpy API)."""
         return self._node.destroy_subscription(self)
+
+
+@dataclass(frozen=True)
+class TopicEndpointInfo:
+    """A publisher or subscription seen in the graph, as ``rclpy.topic_endpoint_info``.
+
+    The standalone backend does not map endpoints to nodes: ``node_name`` and
+    ``node_namespace`` hold rmw's placeholders for an unknown node.
+    """
+
+    topic_type: str
+    endpoint_type: str
+    endpoint_gid: bytes
+    qos_profile: QoSProfile
+    node_name: str = '_NODE_NAME_UNKNOWN_'
+    node_namespace: str = '_NODE_NAMESPACE_UNKNOWN_'
 
 
 class Timer:
@@ -531,6 +548,25 @@ class Node:
         """Return the number of subscriptions (in any process) on a topic."""
         dds_name = 'rt' + self.resolve_topic_name(topic_name)
         return sum(1 for e in self.context.endpoints(dds_name) if not e.is_writer)
+
+    def get_publishers_info_by_topic(self, topic_name: str,
+                                     no_mangle: bool = False) -> list[TopicEndpointInfo]:
+        """Return the publishers (in any process) on a topic, with their offered QoS."""
+        return self._endpoints_info(topic_name, no_mangle, is_writer=True)
+
+    def get_subscriptions_info_by_topic(self, topic_name: str,
+                                        no_mangle: bool = False) -> list[TopicEndpointInfo]:
+        """Return the subscriptions (in any process) on a topic, with their requested QoS."""
+        return self._endpoints_info(topic_name, no_mangle, is_writer=False)
+
+    def _endpoints_info(self, topic_name: str, no_mangle: bool,
+                        is_writer: bool) -> list[TopicEndpointInfo]:
+        fq_topic = topic_name if no_mangle else self.resolve_topic_name(topic_name)
+        dds_name = fq_topic if no_mangle else 'rt' + fq_topic
+        return [TopicEndpointInfo(
+            ros_type_name(e.type_name), 'PUBLISHER' if is_writer else 'SUBSCRIPTION', e.key,
+            profile_from_dds(e.qos) if e.qos is not None else QoSProfile())
+            for e in self.context.endpoints(dds_name) if e.is_writer == is_writer]
 
     def get_topic_names_and_types(self) -> list[tuple[str, list[str]]]:
         """Return the ROS topics seen in the graph with their types."""

@@ -158,3 +158,37 @@ def dds_qos(profile: QoSProfile, user_data: bytes = b'') -> Qos:
     if user_data:
         policies.append(Policy.Userdata(user_data))
     return Qos(*policies)
+
+
+def profile_from_dds(qos: Qos) -> QoSProfile:
+    """Return the ROS 2 profile of a discovered reader or writer, the inverse of :func:`dds_qos`.
+
+    Policies the endpoint does not carry keep rmw's defaults (reliable, volatile, keep last 10
+    for a missing history); an infinite deadline, lifespan or lease reads as unspecified.
+    """
+    profile = QoSProfile()
+    history = qos[Policy.History] if Policy.History in qos else None
+    if history == Policy.History.KeepAll:
+        profile.history, profile.depth = HistoryPolicy.KEEP_ALL, 0
+    elif history is not None:
+        profile.depth = int(history.depth)
+    if Policy.Reliability in qos and qos[Policy.Reliability] == Policy.Reliability.BestEffort:
+        profile.reliability = ReliabilityPolicy.BEST_EFFORT
+    if Policy.Durability in qos and qos[Policy.Durability] != Policy.Durability.Volatile:
+        # Transient and persistent are stronger than any ROS 2 endpoint asks for.
+        profile.durability = DurabilityPolicy.TRANSIENT_LOCAL
+    if Policy.Deadline in qos:
+        profile.deadline = _finite(int(qos[Policy.Deadline].deadline))
+    if Policy.Lifespan in qos:
+        profile.lifespan = _finite(int(qos[Policy.Lifespan].lifespan))
+    if Policy.Liveliness in qos:
+        liveliness = qos[Policy.Liveliness]
+        profile.liveliness = LivelinessPolicy.MANUAL_BY_TOPIC \
+            if isinstance(liveliness, Policy.Liveliness.ManualByTopic) \
+            else LivelinessPolicy.AUTOMATIC
+        profile.liveliness_lease_duration = _finite(int(liveliness.lease_duration))
+    return profile
+
+
+def _finite(nanoseconds: int) -> Duration:
+    return Duration(nanoseconds=0 if nanoseconds >= _INFINITE_NS else nanoseconds)

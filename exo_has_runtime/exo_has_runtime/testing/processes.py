@@ -17,6 +17,7 @@ import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
+from typing import IO
 
 
 class NodeProcess:
@@ -30,23 +31,29 @@ class NodeProcess:
         Its arguments.
     env : Mapping[str, str] or None
         Extra environment variables.
+    log_path : Path or None
+        File for the output; a new temporary file by default.
 
     """
 
     def __init__(self, module: str, args: Sequence[str] = (),
-                 env: Mapping[str, str] | None = None) -> None:
+                 env: Mapping[str, str] | None = None, log_path: Path | None = None) -> None:
         self.module = module
         # Kept open while the process runs; closed by stop().
-        self._log = tempfile.NamedTemporaryFile(
-            prefix=module.rsplit('.', 1)[-1] + '-', suffix='.log', delete=False)
+        self._log: IO[bytes]
+        if log_path is None:
+            self._log = tempfile.NamedTemporaryFile(
+                prefix=module.rsplit('.', 1)[-1] + '-', suffix='.log', delete=False)
+        else:
+            self._log = Path(log_path).open('wb')
         self.log_path = Path(self._log.name)
         self.process = subprocess.Popen(
             [sys.executable, '-u', '-m', module, *args], stdout=self._log,
             stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
             env={**os.environ, **(env or {})},
             # -m puts the working directory first on sys.path; in a workspace root the package
-            # folders would shadow the installed packages, so run from the log's folder.
-            cwd=self.log_path.parent)
+            # folders would shadow the installed packages, so run from a neutral folder.
+            cwd=tempfile.gettempdir())
 
     def __enter__(self) -> NodeProcess:
         return self

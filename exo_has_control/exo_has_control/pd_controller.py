@@ -1,0 +1,189 @@
+"""PD controller node: the paper's position loop for each HAS cylinder, hip and knee.
+
+For every joint listed in ``joints``, takes the reference angle from ``joint_reference``
+(sensor_msgs/JointState, by name), turns it into a cylinder extension through the joint's
+linkage (paper Eq. 1), and answers every HAS state with a motor speed command: the loop runs at
+the rate of the position samples, as the paper's STM32 does at 200 Hz. Before the first
+reference a joint holds its first measured position. A FATAL safety event stops every joint
+(motor speed 0, drive disabled: the compact valve falls to free mode) until a RESET event::
+
+    ros2 run exo_has_control pd_controller --ros-args -p joints:="['left_hip', 'left_knee']"
+
+Gains are per joint type, ``hip.kp``, ``hip.kd``, ``hip.kff``, ``knee.kp`` and so on.
+"""
+
+from __future__ import annotations
+
+import sys
+from functools import partial
+
+from exo_has_control.pd import PAPER_KD, PAPER_KP, PdGains, PositionLoop
+from exo_has_control.tracking import ReferenceFollower
+from exo_has_runtime import (
+    STARTUP_ERRORS,
+    DurabilityPolicy,
+    ExternalShutdownException,
+    FloatingPointRange,
+    HistoryPolicy,
+    Node,
+    ParameterDescriptor,
+    QoSProfile,
+    ReliabilityPolicy,
+    get_logger,
+    get_message,
+    init,
+    qos_profile_sensor_data,
+    spin,
+    try_shutdown,
+)
+from exo_has_runtime.topics import (
+    JOINT_NAMES,
+    JOINT_REFERENCE_TOPIC,
+    SAFETY_EVENT_DEPTH,
+    SAFETY_EVENT_TOPIC,
+    check_joint,
+    has_command_topic,
+    has_state_topic,
+)
+from exo_has_sim.parameters import HasParameters, load_parameters
+from exo_has_sim.plant import joint_type_of
+
+HasCommand = get_message('exo_has_msgs/msg/HasCommand')
+HasState = get_message('exo_has_msgs/msg/HasState')
+SafetyEvent = get_message('exo_has_msgs/msg/SafetyEvent')
+JointState = get_message('sensor_msgs/msg/JointState')
+
+GAIN_RANGE = [FloatingPointRange(from_value=0.0, to_value=1.0e7)]
+
+
+class PdController(Node):
+    """PD position control of the listed joints' cylinders, stopped by fatal safety events."""
+
+    def __init__(self) -> None:
+        super().__init__('pd_controller')
+        joints = list(self.declare_parameter('joints', list(JOINT_NAMES), ParameterDescriptor(
+            description=f'joints controlled, among {", ".join(JOINT_NAMES)}',
+            read_only=True)).value)
+        if not joints or len(set(joints)) != len(joints):
+            msg = f'parameter joints must list distinct joints, got {joints}'
+            raise ValueError(msg)
+        timeout = self.declare_parameter('reference_timeout', 0.1, ParameterDescriptor(
+            description='age [s] after which a reference is held still (its velocity dropped)',
+            read_only=True,
+            floating_point_range=[FloatingPointRange(from_value=0.001, to_value=10.0)])).value
+        self._loops: dict[str, PositionLoop] = {}
+        self._followers: dict[str, ReferenceFollower] = {}
+        self._command_publishers = {}
+        for joint in (check_joint(j) for j in joints):
+            params = self._joint_type_parameters(joint_type_of(joint))
+            self._loops[joint] = PositionLoop(self._gains(params))
+            self._followers[joint] = ReferenceFollower(joint, params, timeout)
+            self._command_publishers[joint] = self.create_publisher(
+                HasCommand, has_command_topic(joint), qos_profile_sensor_data)
+            self.create_subscription(HasState, has_state_topic(joint),
+                                     partial(self._on_state, joint), qos_profile_sensor_data)
+        self._stopped = False
+        self.create_subscription(JointState, JOINT_REFERENCE_TOPIC, self._on_reference,
+                                 qos_profile_sensor_data)
+        events_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=SAFETY_EVENT_DEPTH,
+                                reliability=ReliabilityPolicy.RELIABLE,
+                                durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.create_subscription(SafetyEvent, SAFETY_EVENT_TOPIC, self._on_event, events_qos)
+        gains = '; '.join(f'{joint}: kp {loop.gains.kp:g}, kd {loop.gains.kd:g}, '
+                          f'kff {loop.gains.kff:.5g}, limit {loop.gains.speed_limit:.5g}'
+                          for joint, loop in self._loops.items())
+        self.get_logger().info(f'pd controller ready ({gains}; kp in (rad/s)/m, kd and kff in '
+                               '(rad/s)/(m/s), limit in rad/s)')
+
+    def _joint_type_parameters(self, kind: str) -> HasParameters:
+        """Declare (once) and load the parameter set of a joint type."""
+        name = f'{kind}.params'
+        if not self.has_parameter(name):
+            self.declare_parameter(name, kind, ParameterDescriptor(
+                description=f'{kind} HAS parameter set (linkage, motor limit): {kind} or a '
+                            'parameters YAML file', read_only=True))
+        return load_parameters(self.get_parameter(name).value)
+
+    def _gains(self, params: HasParameters) -> PdGains:
+        """Declare (once) and read the gains of a joint type."""
+        kind = params.joint_type
+        paper = PdGains.paper(params)
+        specs = (
+            ('kp', PAPER_KP, "position gain [(rad/s)/m]: the paper's P = 35 read as (rad/s) "
+                             'per mm'),
+            ('kd', PAPER_KD, "velocity-error gain [(rad/s)/(m/s)]: the paper's D = 15"),
+            ('kff', paper.kff, 'velocity feedforward [(rad/s)/(m/s)]: 1/K of Eq. 14; 0 gives '
+                               "the paper's pure PD"),
+            ('motor_speed_limit', params.motor_speed_max,
+             'motor speed saturation [rad/s] (the paper: 4000 r/min)'),
+        )
+        values = {}
+        for key, default, description in specs:
+            name = f'{kind}.{key}'
+            if not self.has_parameter(name):
+                self.declare_parameter(name, float(default), ParameterDescriptor(
+                    description=description, read_only=True, floating_point_range=GAIN_RANGE))
+            values[key] = self.get_parameter(name).value
+        if values['motor_speed_limit'] > params.motor_speed_max:
+            msg = (f'{kind}.motor_speed_limit {values["motor_speed_limit"]} rad/s is above the '
+                   f'motor top speed {params.motor_speed_max:.5g} rad/s')
+            raise ValueError(msg)
+        return PdGains(values['kp'], values['kd'], values['kff'], values['motor_speed_limit'])
+
+    def _now(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def _on_reference(self, reference: JointState) -> None:
+        now = self._now()
+        for follower in self._followers.values():
+            problem = follower.take(now, reference.name, reference.position, reference.velocity)
+            if problem:
+                self.get_logger().warn(problem, throttle_duration_sec=1.0)
+
+    def _on_state(self, joint: str, state: HasState) -> None:
+        loop = self._loops[joint]
+        loop.measure(state.header.stamp.sec + state.header.stamp.nanosec * 1e-9, state.position)
+        if self._stopped:
+            self._publish(joint, 0.0, False)
+            return
+        x_ref, v_ref = self._followers[joint].target(self._now(), state.position)
+        self._publish(joint, loop.command(x_ref, v_ref), True)
+
+    def _on_event(self, event: SafetyEvent) -> None:
+        if event.severity == SafetyEvent.SEVERITY_FATAL and not self._stopped:
+            self._stopped = True
+            self.get_logger().error(f'stopped by a fatal safety event: {event.text}')
+            for joint in self._loops:
+                self._publish(joint, 0.0, False)
+        elif event.kind == SafetyEvent.KIND_RESET and self._stopped:
+            self._stopped = False
+            for joint, loop in self._loops.items():
+                self._followers[joint].hold(loop.position)
+            self.get_logger().info('safety reset: control resumed')
+
+    def _publish(self, joint: str, motor_speed: float, enable: bool) -> None:
+        command = HasCommand(joint=joint, motor_speed=motor_speed, enable=enable)
+        command.header.stamp = self.get_clock().now().to_msg()
+        self._command_publishers[joint].publish(command)
+
+
+def main(args: list[str] | None = None) -> None:
+    """Run the controller until interrupted."""
+    init(args=args)
+    node = None
+    try:
+        node = PdController()
+        spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except STARTUP_ERRORS as exc:
+        get_logger('pd_controller').fatal(f'cannot start: {exc}')
+        raise SystemExit(1) from None
+    finally:
+        if node is not None:
+            node.destroy_node()
+        try_shutdown()
+
+
+if __name__ == '__main__':
+    main(sys.argv)

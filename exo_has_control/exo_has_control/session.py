@@ -1,0 +1,231 @@
+"""An exoskeleton session without launch files: every node its own process, recorded to a bag.
+
+:class:`Session` starts the recorder, the four plants, the watchdog, the PD controller and,
+last, the gait publisher (whose first reference starts the trials), each with
+:class:`~exo_has_runtime.testing.processes.NodeProcess` and its log in the session folder; it
+stops them in the reverse order (SIGINT, then SIGTERM, then SIGKILL), the recorder last, so the
+bag holds the whole session and is closed cleanly. The demo (``exo-has demo``) and the
+integration tests run sessions.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from exo_has_runtime.testing.processes import NodeProcess
+from exo_has_runtime.topics import (
+    DIAGNOSTICS_TOPIC,
+    JOINT_NAMES,
+    JOINT_REFERENCE_TOPIC,
+    SAFETY_EVENT_TOPIC,
+    has_command_topic,
+    has_state_topic,
+    load_force_topic,
+)
+
+#: Time allowed for a node to report ready [s]; a plant's first start compiles the model.
+READY_TIMEOUT = 120.0
+
+
+def recorded_topics(with_loads: bool = False) -> list[str]:
+    """Absolute names of the topics a session records."""
+    topics = [f'/{JOINT_REFERENCE_TOPIC}', f'/{SAFETY_EVENT_TOPIC}', DIAGNOSTICS_TOPIC]
+    for joint in JOINT_NAMES:
+        topics += [f'/{has_command_topic(joint)}', f'/{has_state_topic(joint)}']
+        if with_loads:
+            topics.append(f'/{load_force_topic(joint)}')
+    return topics
+
+
+@dataclass(frozen=True)
+class NodeSpec:
+    """One node of a session: a name for its log, the module run, its ROS arguments."""
+
+    name: str
+    module: str
+    arguments: tuple[str, ...] = ()
+    ready: str = r'ready'  # a line of its output that says it is up
+    stage: int = 1  # nodes start by stage, each once the earlier stages are up
+
+
+@dataclass(frozen=True)
+class SessionConfig:
+    """What a session runs.
+
+    Attributes
+    ----------
+    motions, durations : tuple
+        Trials of the gait publisher and their lengths [s].
+    rate : float
+        Rate of the plants and the gait publisher [Hz] (the paper: 200).
+    record : bool
+        Whether to record a bag.
+    loads : bool
+        Whether to record the load topics too (when a test publishes loads).
+    plant_arguments : dict
+        Extra ROS arguments per joint's plant (e.g. ``-p load_force:=...``).
+    start_delay : float
+        Time from the gait publisher's start to its first reference [s], for the recorder and
+        the controller to subscribe.
+    stale_periods : int
+        Control periods without a state or command before the watchdog stops everything: 20
+        (100 ms at 200 Hz), as eleven Python processes on two shared cores see gaps of 50 ms.
+
+    """
+
+    motions: tuple[str, ...] = ('walk', 'squat')
+    durations: tuple[float, ...] = (10.0, 8.0)
+    rate: float = 200.0
+    record: bool = True
+    loads: bool = False
+    plant_arguments: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    start_delay: float = 2.0
+    stale_periods: int = 20
+
+    @property
+    def duration(self) -> float:
+        """Length of all trials [s]."""
+        return float(sum(self.durations))
+
+
+def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
+    """Return the nodes of a session."""
+    specs = []
+    if config.record and bag is not None:
+        topics = ','.join(f"'{t}'" for t in recorded_topics(config.loads))
+        specs.append(NodeSpec('recorder', 'exo_has_runtime.recorder', (
+            '--ros-args', '-p', f'output:={bag}', '-p', f'topics:=[{topics}]'),
+            ready=r'recording', stage=0))
+    for joint in JOINT_NAMES:
+        specs.append(NodeSpec(f'{joint}_plant', 'exo_has_sim.plant_node', (
+            '--ros-args', '-r', f'__node:={joint}_plant', '-p', f'joint:={joint}',
+            '-p', f'rate:={config.rate}', *config.plant_arguments.get(joint, ())),
+            ready=r'plant ready'))
+    specs.append(NodeSpec('pd_controller', 'exo_has_control.pd_controller', (),
+                          ready=r'controller ready'))
+    specs.append(NodeSpec('watchdog', 'exo_has_driver.watchdog', (
+        '--ros-args', '-p', f'rate:={config.rate}', '-p', f'control_rate:={config.rate}',
+        '-p', f'stale_periods:={config.stale_periods}'), stage=2))
+    motions = ','.join(f"'{m}'" for m in config.motions)
+    durations = ','.join(f'{float(d)}' for d in config.durations)
+    specs.append(NodeSpec('gait_publisher', 'exo_has_control.gait_publisher', (
+        '--ros-args', '-p', f'motions:=[{motions}]', '-p', f'durations:=[{durations}]',
+        '-p', f'rate:={config.rate}', '-p', f'start_delay:={config.start_delay}'),
+        ready=r'gait publisher ready', stage=3))
+    return specs
+
+
+class Session:
+    """The nodes of a session running as processes, logs and bag in ``folder``.
+
+    Parameters
+    ----------
+    config : SessionConfig
+        What to run.
+    folder : Path
+        Session folder: ``bag/`` (when recording) and ``logs/`` go there.
+    env : dict or None
+        Extra environment of the node processes (ROS_DOMAIN_ID, for instance).
+
+    """
+
+    def __init__(self, config: SessionConfig, folder: Path,
+                 env: dict[str, str] | None = None) -> None:
+        self.config = config
+        self.folder = Path(folder)
+        self.bag = self.folder / 'bag' if config.record else None
+        self.logs = self.folder / 'logs'
+        self.env = env or {}
+        self.processes: dict[str, NodeProcess] = {}
+        self.started_at: float | None = None  # monotonic time the gait publisher came up
+
+    def start(self, show: Callable[[str], None] = print) -> None:
+        """Start every node in order, each once the ones before are ready.
+
+        Raises
+        ------
+        TimeoutError
+            If a node does not come up; its output is quoted and everything is stopped.
+
+        """
+        self.logs.mkdir(parents=True, exist_ok=True)
+        specs = node_specs(self.config, self.bag)
+        # The recorder first (it reports once it has subscribed), then the plants and the
+        # controller, the watchdog once there is something to watch, and the gait publisher
+        # last: the trials start when everything is up and the recorder has subscribed to
+        # every topic (the gait publisher's start delay leaves it the time).
+        try:
+            for stage in sorted({spec.stage for spec in specs}):
+                group = [spec for spec in specs if spec.stage == stage]
+                for spec in group:
+                    self.processes[spec.name] = NodeProcess(
+                        spec.module, spec.arguments, env=self.env,
+                        log_path=self.logs / f'{spec.name}.log')
+                    show(f'started {spec.name} (pid {self.processes[spec.name].process.pid})')
+                for spec in group if stage > 0 else ():
+                    self.processes[spec.name].wait_for_output(spec.ready, READY_TIMEOUT)
+            if 'recorder' in self.processes:
+                topics = len(recorded_topics())  # load topics come when someone publishes
+                self.processes['recorder'].wait_for_output(rf'recording {topics} topics',
+                                                           READY_TIMEOUT)
+            self.started_at = time.monotonic() + self.config.start_delay
+        except BaseException:
+            self.stop()
+            raise
+
+    def run(self, show: Callable[[str], None] = print, interval: float = 2.0,
+            extra: float = 1.0) -> None:
+        """Let the trials run to their end (plus ``extra`` seconds), showing progress."""
+        if self.started_at is None:
+            msg = 'start the session first'
+            raise RuntimeError(msg)
+        end = self.started_at + self.config.duration + extra
+        while (now := time.monotonic()) < end:
+            elapsed = now - self.started_at
+            show(f'[{elapsed:5.1f} s / {self.config.duration:.0f} s] {self.status()}')
+            dead = [name for name, p in self.processes.items() if p.process.poll() is not None]
+            if dead:
+                show(f'stopped unexpectedly: {", ".join(dead)}')
+            time.sleep(min(interval, max(0.0, end - time.monotonic())))
+
+    def status(self) -> str:
+        """One line: the trial running and the safety events so far."""
+        gait = self.processes.get('gait_publisher')
+        trial = 'waiting'
+        if gait is not None:
+            lines = [ln for ln in gait.output.splitlines() if 'trial' in ln or 'done' in ln]
+            if lines:
+                trial = lines[-1].split(']: ', 1)[-1]
+        watchdog = self.processes.get('watchdog')
+        events = 0 if watchdog is None else sum(
+            1 for ln in watchdog.output.splitlines() if 'ERROR' in ln or 'WARN' in ln
+            or 'FATAL' in ln)
+        return f'{trial}; watchdog warnings and errors: {events}'
+
+    def stop(self) -> dict[str, int]:
+        """Stop every node, the recorder last; return their exit codes by name."""
+        codes = {}
+        for name in reversed(list(self.processes)):
+            codes[name] = self.processes[name].stop()
+        return codes
+
+    def output(self, name: str) -> str:
+        """Everything a node wrote so far."""
+        return self.processes[name].output
+
+
+@contextmanager
+def running(config: SessionConfig, folder: Path, env: dict[str, str] | None = None,
+            show: Callable[[str], None] = print) -> Iterator[Session]:
+    """Start a session, yield it, stop it however the block ends."""
+    session = Session(config, folder, env)
+    session.start(show)
+    try:
+        yield session
+    finally:
+        session.stop()
+

@@ -1,0 +1,699 @@
+"""Safety watchdog logic for the HAS joints, free of ROS.
+
+A :class:`Watchdog` is fed plain values with the times they were received [s]: each joint's HAS
+state and command, the joint references, and a periodic :meth:`Watchdog.check`. It returns
+:class:`Event` records, numbered as exo_has_msgs/msg/SafetyEvent, and holds the latched stop.
+The rules, per joint (thresholds in :class:`SafetyLimits`):
+
+- safety valve open: the higher chamber pressure at or over the relief setting, or the valve
+  reporting relief mode: SAFETY_VALVE_OPEN, FATAL;
+- over-pressure: the higher chamber pressure over the warning threshold (by default 0.9 times
+  the relief setting, which equals the maximum working pressure in our parameter sets):
+  OVER_PRESSURE, WARN, raised again only once the pressure fell 5 % below the threshold;
+- stroke end: the position within the margin of either end: STROKE_END, ERROR, raised again
+  only once the position left the end by the margin plus 0.5 mm;
+- tracking error: the reference angle minus the angle of the measured position over the limit,
+  for at least the persistence time, while the joint's drive is enabled: TRACKING_ERROR, FATAL;
+- stale state or command: nothing for longer than its timeout after the joint's first message,
+  or nothing at all within the start-up grace: STALE_STATE / STALE_COMMAND, FATAL;
+- a NaN or infinite command: INVALID_COMMAND, FATAL;
+- a NaN or infinite state value, a position more than 2 mm beyond a stroke end, a pressure
+  below an absolute vacuum or an unknown valve mode: SENSOR_FAULT, FATAL.
+
+A persisting condition is reported once, when it arises. A FATAL event latches a stop
+(:attr:`Watchdog.stopped`) until :meth:`Watchdog.reset`, which is refused while a fatal
+condition still holds. While stopped, commands are stop commands and are not checked, but every
+other rule keeps reporting new conditions once each.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+
+from exo_has_driver.errors import SafetyConfigError
+from exo_has_sim.errors import KinematicsError
+from exo_has_sim.kinematics import Linkage
+from exo_has_sim.parameters import HasParameters
+
+# Kinds and severities, numbered as exo_has_msgs/msg/SafetyEvent (a test checks they agree).
+KIND_SAFETY_VALVE_OPEN = 1
+KIND_OVER_PRESSURE = 2
+KIND_STROKE_END = 3
+KIND_TRACKING_ERROR = 4
+KIND_STALE_STATE = 5
+KIND_STALE_COMMAND = 6
+KIND_INVALID_COMMAND = 7
+KIND_DRIVE_FAULT = 8
+KIND_HEARTBEAT_LOST = 9
+KIND_BUS_OFF = 10
+KIND_SENSOR_FAULT = 11
+KIND_E_STOP = 12
+KIND_RESET = 13
+
+SEVERITY_INFO = 0
+SEVERITY_WARN = 1
+SEVERITY_ERROR = 2
+SEVERITY_FATAL = 3
+
+#: Readable names of the kinds, for texts and diagnostics.
+KIND_NAMES = {
+    KIND_SAFETY_VALVE_OPEN: 'safety valve open', KIND_OVER_PRESSURE: 'over-pressure',
+    KIND_STROKE_END: 'stroke end', KIND_TRACKING_ERROR: 'tracking error',
+    KIND_STALE_STATE: 'stale state', KIND_STALE_COMMAND: 'stale command',
+    KIND_INVALID_COMMAND: 'invalid command', KIND_DRIVE_FAULT: 'drive fault',
+    KIND_HEARTBEAT_LOST: 'heartbeat lost', KIND_BUS_OFF: 'bus off',
+    KIND_SENSOR_FAULT: 'sensor fault', KIND_E_STOP: 'emergency stop', KIND_RESET: 'reset',
+}
+
+# Valve modes, numbered as exo_has_msgs/msg/HasState.
+VALVE_FREE = 0
+VALVE_ASSIST = 1
+VALVE_RELIEF = 2
+
+# Levels, numbered as diagnostic_msgs/msg/DiagnosticStatus.
+LEVEL_OK = 0
+LEVEL_WARN = 1
+LEVEL_ERROR = 2
+LEVEL_STALE = 3
+
+DEFAULT_OVER_PRESSURE_RATIO = 0.9
+#: [m] The knee's straight-leg standing pose is 2.0 mm from the cylinder's extended end in our
+#: linkage, so the margin stays well below that; 0.5 mm covers the end stop's compression
+#: (about 0.1 mm at full thrust) and position noise.
+DEFAULT_STROKE_MARGIN = 0.5e-3
+#: [rad] 20 deg: the paper's hip tracking error in squatting stays within -1.5/+2.5 deg, so
+#: this is far beyond normal tracking, and still below half the hip's 74 deg linkage range.
+DEFAULT_TRACKING_ERROR_LIMIT = math.radians(20.0)
+#: [s] Longer than the brief lag of a tracking controller at the knee's peak swing velocity,
+#: short against the half second a runaway joint needs to cross its range.
+DEFAULT_TRACKING_ERROR_TIME = 0.2
+#: Control periods without a message after which a state or command is stale.
+DEFAULT_STALE_PERIODS = 10
+#: [s] Time the nodes of a session have to start and send their first messages.
+DEFAULT_STARTUP_GRACE = 5.0
+
+#: [Pa] Gauge pressures below this are impossible (an absolute vacuum is -0.101 MPa at sea level).
+MIN_GAUGE_PRESSURE = -0.12e6
+#: [m] Positions further beyond a stroke end are impossible: the end stop gives about 0.1 mm.
+END_STOP_TOLERANCE = 2e-3
+#: Fraction below the warning threshold the pressure must fall to before another warning.
+PRESSURE_HYSTERESIS = 0.05
+#: [m] Distance beyond the margin the position must leave an end by before another event.
+STROKE_HYSTERESIS = 0.5e-3
+
+
+@dataclass(frozen=True)
+class SafetyLimits:
+    """Thresholds of the watchdog for one joint, SI units.
+
+    Attributes
+    ----------
+    relief_pressure : float
+        Safety valve setting [Pa]; a chamber at or over it means the valve is open.
+    warning_pressure : float
+        Over-pressure warning threshold [Pa], at most the relief pressure.
+    stroke : float
+        Cylinder stroke [m].
+    stroke_margin : float
+        Distance from either end within which the stroke end counts as reached [m].
+    tracking_error_limit : float
+        Largest tolerated joint tracking error [rad].
+    tracking_error_time : float
+        How long the tracking error must stay over its limit to be a fault [s].
+    state_timeout : float
+        Longest tolerated gap between HAS states [s].
+    command_timeout : float
+        Longest tolerated gap between HAS commands [s].
+    startup_grace : float
+        Time from the start (or a reset, for commands) to the first message [s].
+    linkage : Linkage
+        The joint's linkage, to turn a cylinder extension into a joint angle.
+
+    """
+
+    relief_pressure: float
+    warning_pressure: float
+    stroke: float
+    stroke_margin: float
+    tracking_error_limit: float
+    tracking_error_time: float
+    state_timeout: float
+    command_timeout: float
+    startup_grace: float
+    linkage: Linkage
+
+    def __post_init__(self) -> None:
+        for item in fields(self):
+            value = getattr(self, item.name)
+            if item.name != 'linkage' and not (isinstance(value, (int, float))
+                                               and math.isfinite(value)):
+                msg = f'safety limit {item.name} = {value!r} must be a finite number'
+                raise SafetyConfigError(msg)
+        checks = [
+            ('relief_pressure', self.relief_pressure > 0.0, 'positive [Pa]'),
+            ('warning_pressure', 0.0 < self.warning_pressure <= self.relief_pressure,
+             f'in (0, relief_pressure = {self.relief_pressure:g}] Pa'),
+            ('stroke', self.stroke > 0.0, 'positive [m]'),
+            ('stroke_margin', 0.0 <= self.stroke_margin < self.stroke / 4.0,
+             f'in [0, stroke / 4 = {self.stroke / 4.0:g}) m'),
+            ('tracking_error_limit', self.tracking_error_limit > 0.0, 'positive [rad]'),
+            ('tracking_error_time', self.tracking_error_time >= 0.0, 'non-negative [s]'),
+            ('state_timeout', self.state_timeout > 0.0, 'positive [s]'),
+            ('command_timeout', self.command_timeout > 0.0, 'positive [s]'),
+            ('startup_grace', self.startup_grace >= 0.0, 'non-negative [s]'),
+        ]
+        for name, ok, expected in checks:
+            if not ok:
+                msg = f'safety limit {name} = {getattr(self, name)!r} must be {expected}'
+                raise SafetyConfigError(msg)
+
+    @classmethod
+    def from_parameters(cls, params: HasParameters, *,
+                        over_pressure_ratio: float = DEFAULT_OVER_PRESSURE_RATIO,
+                        stroke_margin: float = DEFAULT_STROKE_MARGIN,
+                        tracking_error_limit: float = DEFAULT_TRACKING_ERROR_LIMIT,
+                        tracking_error_time: float = DEFAULT_TRACKING_ERROR_TIME,
+                        stale_periods: int = DEFAULT_STALE_PERIODS,
+                        control_rate: float | None = None,
+                        startup_grace: float = DEFAULT_STARTUP_GRACE) -> SafetyLimits:
+        """Build the limits of a joint from its HAS parameter set.
+
+        Parameters
+        ----------
+        params : HasParameters
+            The joint's parameter set (relief pressure, stroke, linkage, control rate).
+        over_pressure_ratio : float
+            Warning threshold as a fraction of the relief pressure, in (0, 1].
+        stroke_margin : float
+            See :class:`SafetyLimits` [m].
+        tracking_error_limit : float
+            See :class:`SafetyLimits` [rad].
+        tracking_error_time : float
+            See :class:`SafetyLimits` [s].
+        stale_periods : int
+            Control periods after which a state or a command is stale, at least 1.
+        control_rate : float or None
+            Control rate [Hz] that sets the period; None takes the parameter set's.
+        startup_grace : float
+            See :class:`SafetyLimits` [s].
+
+        Raises
+        ------
+        SafetyConfigError
+            Naming the first value out of range.
+
+        """
+        rate = params.control_rate if control_rate is None else control_rate
+        if not (math.isfinite(over_pressure_ratio) and 0.0 < over_pressure_ratio <= 1.0):
+            msg = f'over_pressure_ratio = {over_pressure_ratio!r} must be in (0, 1]'
+            raise SafetyConfigError(msg)
+        if isinstance(stale_periods, bool) or not isinstance(stale_periods, int) \
+                or stale_periods < 1:
+            msg = f'stale_periods = {stale_periods!r} must be an integer of at least 1'
+            raise SafetyConfigError(msg)
+        if not (math.isfinite(rate) and rate > 0.0):
+            msg = f'control_rate = {rate!r} must be positive [Hz]'
+            raise SafetyConfigError(msg)
+        timeout = stale_periods / rate
+        return cls(relief_pressure=params.relief_pressure,
+                   warning_pressure=over_pressure_ratio * params.relief_pressure,
+                   stroke=params.stroke, stroke_margin=stroke_margin,
+                   tracking_error_limit=tracking_error_limit,
+                   tracking_error_time=tracking_error_time, state_timeout=timeout,
+                   command_timeout=timeout, startup_grace=startup_grace,
+                   linkage=Linkage.from_parameters(params))
+
+
+@dataclass(frozen=True)
+class Event:
+    """A safety event, field for field an exo_has_msgs/msg/SafetyEvent without its header.
+
+    Attributes
+    ----------
+    joint : str
+        Joint concerned, empty for a system-wide event (a reset).
+    kind : int
+        One of the ``KIND_*`` constants.
+    severity : int
+        One of the ``SEVERITY_*`` constants.
+    value : float
+        Measured value, in the unit SafetyEvent lists for the kind; NaN where there is none.
+    limit : float
+        Limit the value crossed, same unit; NaN where there is none.
+    latched : bool
+        Whether the watchdog holds a latched stop after this event.
+    text : str
+        Human-readable description.
+
+    """
+
+    joint: str
+    kind: int
+    severity: int
+    value: float
+    limit: float
+    latched: bool
+    text: str
+
+
+@dataclass(frozen=True)
+class JointDiagnostic:
+    """Summary of one joint for a diagnostic_msgs/msg/DiagnosticStatus.
+
+    Attributes
+    ----------
+    joint : str
+        The joint.
+    level : int
+        One of the ``LEVEL_*`` constants.
+    message : str
+        What is wrong, or ``'ok'``.
+    values : tuple[tuple[str, str], ...]
+        Key values (the unit in the key), formatted.
+
+    """
+
+    joint: str
+    level: int
+    message: str
+    values: tuple[tuple[str, str], ...]
+
+
+@dataclass
+class _Joint:
+    """What the watchdog knows of one joint."""
+
+    limits: SafetyLimits
+    command_epoch: float
+    state_time: float | None = None
+    command_time: float | None = None
+    position: float = math.nan
+    angle: float | None = None
+    pressure_a: float = math.nan
+    pressure_b: float = math.nan
+    valve_mode: int = -1
+    enabled: bool = False
+    reference: float | None = None
+    tracking_error: float | None = None
+    over_limit_since: float | None = None
+    # Kinds whose condition holds and has been reported (the deduplication).
+    active: set[int] = field(default_factory=set)
+
+
+def _mpa(pressure: float) -> str:
+    return f'{pressure * 1e-6:.2f} MPa'
+
+
+class Watchdog:
+    """Checks the joints' states, commands and references and latches a stop on a fault.
+
+    Parameters
+    ----------
+    limits : Mapping[str, SafetyLimits]
+        The watched joints and their limits.
+    start : float
+        Time the watchdog starts [s], from which the start-up grace runs.
+
+    Raises
+    ------
+    SafetyConfigError
+        If no joint is given or the start time is not finite.
+
+    """
+
+    def __init__(self, limits: Mapping[str, SafetyLimits], start: float) -> None:
+        if not limits:
+            msg = 'the watchdog needs at least one joint'
+            raise SafetyConfigError(msg)
+        if not math.isfinite(start):
+            msg = f'start time {start!r} must be finite'
+            raise SafetyConfigError(msg)
+        self._start = start
+        self._joints = {joint: _Joint(limit, start) for joint, limit in limits.items()}
+        self._stopped = False
+        self._cause: Event | None = None
+
+    @property
+    def joints(self) -> tuple[str, ...]:
+        """The watched joints."""
+        return tuple(self._joints)
+
+    @property
+    def stopped(self) -> bool:
+        """Whether a stop is latched."""
+        return self._stopped
+
+    @property
+    def cause(self) -> Event | None:
+        """The FATAL event that latched the stop, None when not stopped."""
+        return self._cause
+
+    def on_state(self, joint: str, t: float, position: float, pressure_a: float,
+                 pressure_b: float, valve_mode: int) -> list[Event]:
+        """Take a HAS state.
+
+        Parameters
+        ----------
+        joint : str
+            A watched joint.
+        t : float
+            Receive time [s].
+        position : float
+            Cylinder extension [m].
+        pressure_a, pressure_b : float
+            Rodless and rod chamber gauge pressures [Pa].
+        valve_mode : int
+            One of the ``VALVE_*`` constants.
+
+        Returns
+        -------
+        list[Event]
+            The events this state raises.
+
+        """
+        state = self._joint(joint)
+        state.state_time = t
+        state.active.discard(KIND_STALE_STATE)
+        fault = _sensor_fault(state.limits, position, pressure_a, pressure_b, valve_mode)
+        angle = None
+        if fault is None:
+            try:
+                angle = float(state.limits.linkage.angle(position))
+            except KinematicsError:
+                fault = (position, math.nan, f'position {position:.4f} m outside what the '
+                                             'linkage can reach')
+        if fault is not None:
+            state.angle = state.tracking_error = state.over_limit_since = None
+            value, limit, what = fault
+            return self._once(joint, state, KIND_SENSOR_FAULT, SEVERITY_FATAL, value, limit,
+                              f'{joint}: sensor fault: {what}')
+        state.active.discard(KIND_SENSOR_FAULT)
+        state.position, state.angle = position, angle
+        state.pressure_a, state.pressure_b, state.valve_mode = pressure_a, pressure_b, valve_mode
+        return [*self._check_pressure(joint, state), *self._check_stroke(joint, state),
+                *self._check_tracking(joint, state, t)]
+
+    def on_command(self, joint: str, t: float, motor_speed: float, enable: bool) -> list[Event]:
+        """Take a HAS command; ignored while stopped (commands are stop commands then).
+
+        Parameters
+        ----------
+        joint : str
+            A watched joint.
+        t : float
+            Receive time [s].
+        motor_speed : float
+            Commanded motor speed [rad/s].
+        enable : bool
+            Whether the drive is to follow the command.
+
+        Returns
+        -------
+        list[Event]
+            The events this command raises.
+
+        """
+        state = self._joint(joint)
+        if self._stopped:
+            return []
+        state.command_time = t
+        state.active.discard(KIND_STALE_COMMAND)
+        if not math.isfinite(motor_speed):
+            state.enabled = False
+            return self._once(joint, state, KIND_INVALID_COMMAND, SEVERITY_FATAL, motor_speed,
+                              math.nan, f'{joint}: invalid command: motor speed {motor_speed}')
+        state.active.discard(KIND_INVALID_COMMAND)
+        state.enabled = bool(enable)
+        return []
+
+    def on_reference(self, t: float, angles: Mapping[str, float]) -> list[Event]:
+        """Take joint reference angles [rad] by joint name; other joints are ignored.
+
+        A NaN or infinite angle forgets the joint's reference (no tracking check until a
+        finite one); the controller's invalid command, if any, is what is reported.
+
+        Parameters
+        ----------
+        t : float
+            Receive time [s].
+        angles : Mapping[str, float]
+            Reference angle [rad] of each joint named.
+
+        Returns
+        -------
+        list[Event]
+            Always empty: a reference raises nothing by itself.
+
+        """
+        for joint, angle in angles.items():
+            state = self._joints.get(joint)
+            if state is not None:
+                state.reference = float(angle) if math.isfinite(angle) else None
+        return []
+
+    def check(self, t: float) -> list[Event]:
+        """Check for stale states and commands at time t [s]; call it periodically.
+
+        Returns
+        -------
+        list[Event]
+            The stale events that arose since the last check.
+
+        """
+        events: list[Event] = []
+        # A stop latched by this very check does not hide a joint's stale command.
+        commands_checked = not self._stopped
+        for joint, state in self._joints.items():
+            age, limit, what = self._state_age(state, t)
+            if age > limit:
+                events += self._once(joint, state, KIND_STALE_STATE, SEVERITY_FATAL, age, limit,
+                                     f'{joint}: stale state: {what}')
+            if not commands_checked:
+                continue
+            if state.command_time is None:
+                age, limit = t - state.command_epoch, state.limits.startup_grace
+                what = f'no command within {limit:g} s of the start or reset'
+            else:
+                age, limit = t - state.command_time, state.limits.command_timeout
+                what = f'no command for {age:.3f} s (limit {limit:.3f} s)'
+            if age > limit:
+                events += self._once(joint, state, KIND_STALE_COMMAND, SEVERITY_FATAL, age,
+                                     limit, f'{joint}: stale command: {what}')
+        return events
+
+    def reset(self, t: float) -> list[Event]:
+        """Release a latched stop at time t [s], unless a fatal condition still holds.
+
+        Returns
+        -------
+        list[Event]
+            One RESET event: INFO and not latched when released (or nothing was latched),
+            WARN and latched when refused, with the conditions that still hold.
+
+        """
+        nan = math.nan
+        if not self._stopped:
+            return [Event('', KIND_RESET, SEVERITY_INFO, nan, nan, False,
+                          'reset: no stop was latched')]
+        holding = self._holding(t)
+        if holding:
+            return [Event('', KIND_RESET, SEVERITY_WARN, nan, nan, True,
+                          f'reset refused: {"; ".join(holding)}')]
+        cause = self._cause
+        self._stopped = False
+        self._cause = None
+        for state in self._joints.values():
+            # Controllers resume on the reset: give them the start-up grace again.
+            state.command_time = None
+            state.command_epoch = t
+            state.enabled = False
+            state.over_limit_since = None
+            state.active -= {KIND_TRACKING_ERROR, KIND_STALE_COMMAND, KIND_INVALID_COMMAND}
+        because = f' (latched by {cause.text})' if cause is not None else ''
+        return [Event('', KIND_RESET, SEVERITY_INFO, nan, nan, False,
+                      f'reset: stop released{because}')]
+
+    def diagnostics(self, t: float) -> list[JointDiagnostic]:
+        """Summarise every joint at time t [s], for diagnostic_msgs.
+
+        Returns
+        -------
+        list[JointDiagnostic]
+            One per watched joint: STALE without a recent state, ERROR with a fatal or error
+            condition or while stopped, WARN over the warning pressure, OK otherwise.
+
+        """
+        summaries = []
+        for joint, state in self._joints.items():
+            age, limit, what = self._state_age(state, t)
+            stale = age > limit
+            kinds = sorted(state.active - {KIND_STALE_STATE})
+            parts = [what] if stale else []
+            parts += [KIND_NAMES[kind] for kind in kinds]
+            if self._stopped:
+                parts.append('stopped until reset')
+            if stale:
+                level = LEVEL_STALE
+            elif self._stopped or set(kinds) - {KIND_OVER_PRESSURE}:
+                level = LEVEL_ERROR
+            elif kinds:
+                level = LEVEL_WARN
+            else:
+                level = LEVEL_OK
+            command_age = (t - state.command_time if state.command_time is not None
+                           else math.nan)
+            error = state.tracking_error if state.tracking_error is not None else math.nan
+            angle = state.angle if state.angle is not None else math.nan
+            values = (
+                ('position [m]', f'{state.position:.5f}'),
+                ('angle [rad]', f'{angle:.4f}'),
+                ('pressure_a [Pa]', f'{state.pressure_a:.0f}'),
+                ('pressure_b [Pa]', f'{state.pressure_b:.0f}'),
+                ('valve_mode', str(state.valve_mode)),
+                ('tracking_error [rad]', f'{error:.4f}'),
+                ('state_age [s]', f'{age:.3f}' if state.state_time is not None else 'nan'),
+                ('command_age [s]', f'{command_age:.3f}'),
+                ('enabled', str(state.enabled).lower()),
+                ('latched', str(self._stopped).lower()),
+            )
+            summaries.append(JointDiagnostic(joint, level, '; '.join(parts) or 'ok', values))
+        return summaries
+
+    def _joint(self, joint: str) -> _Joint:
+        try:
+            return self._joints[joint]
+        except KeyError:
+            msg = f'joint {joint!r} is not watched: watched are {", ".join(self._joints)}'
+            raise SafetyConfigError(msg) from None
+
+    def _event(self, joint: str, kind: int, severity: int, value: float, limit: float,
+               text: str) -> Event:
+        if severity >= SEVERITY_FATAL:
+            self._stopped = True
+        event = Event(joint, kind, severity, float(value), float(limit), self._stopped, text)
+        if severity >= SEVERITY_FATAL and self._cause is None:
+            self._cause = event
+        return event
+
+    def _once(self, joint: str, state: _Joint, kind: int, severity: int, value: float,
+              limit: float, text: str) -> list[Event]:
+        """Report a condition when it arises; nothing while it persists."""
+        if kind in state.active:
+            return []
+        state.active.add(kind)
+        return [self._event(joint, kind, severity, value, limit, text)]
+
+    def _state_age(self, state: _Joint, t: float) -> tuple[float, float, str]:
+        """Return the newest state's age [s], the limit it is held to [s], and a description."""
+        if state.state_time is None:
+            limit = state.limits.startup_grace
+            return t - self._start, limit, f'no state within {limit:g} s of the start'
+        age, limit = t - state.state_time, state.limits.state_timeout
+        return age, limit, f'no state for {age:.3f} s (limit {limit:.3f} s)'
+
+    def _holding(self, t: float) -> list[str]:
+        """List the fatal conditions that still hold at t, which forbid a reset."""
+        holding = []
+        for joint, state in self._joints.items():
+            age, limit, what = self._state_age(state, t)
+            if age > limit:
+                holding.append(f'{joint}: {what}')
+            elif KIND_SAFETY_VALVE_OPEN in state.active:
+                pressure = max(state.pressure_a, state.pressure_b)
+                holding.append(f'{joint}: safety valve still open ({_mpa(pressure)}, '
+                               f'valve mode {state.valve_mode})')
+            elif KIND_SENSOR_FAULT in state.active:
+                holding.append(f'{joint}: sensor fault persists')
+        return holding
+
+    def _check_pressure(self, joint: str, state: _Joint) -> list[Event]:
+        limits = state.limits
+        pressure = max(state.pressure_a, state.pressure_b)
+        chamber = 'A' if state.pressure_a >= state.pressure_b else 'B'
+        if pressure >= limits.relief_pressure or state.valve_mode == VALVE_RELIEF:
+            events = self._once(
+                joint, state, KIND_SAFETY_VALVE_OPEN, SEVERITY_FATAL, pressure,
+                limits.relief_pressure,
+                f'{joint}: safety valve open: chamber {chamber} at {_mpa(pressure)}, relief '
+                f'setting {_mpa(limits.relief_pressure)}, valve mode {state.valve_mode}')
+            # The valve event says more: no over-pressure warning beside it.
+            state.active.add(KIND_OVER_PRESSURE)
+            return events
+        state.active.discard(KIND_SAFETY_VALVE_OPEN)
+        if pressure > limits.warning_pressure:
+            return self._once(
+                joint, state, KIND_OVER_PRESSURE, SEVERITY_WARN, pressure,
+                limits.warning_pressure,
+                f'{joint}: over-pressure: chamber {chamber} at {_mpa(pressure)}, over the '
+                f'warning threshold {_mpa(limits.warning_pressure)}')
+        if pressure < limits.warning_pressure * (1.0 - PRESSURE_HYSTERESIS):
+            state.active.discard(KIND_OVER_PRESSURE)
+        return []
+
+    def _check_stroke(self, joint: str, state: _Joint) -> list[Event]:
+        limits = state.limits
+        position = state.position
+        if position <= limits.stroke_margin:
+            end, name = 0.0, 'retracted'
+        elif position >= limits.stroke - limits.stroke_margin:
+            end, name = limits.stroke, 'extended'
+        else:
+            away = limits.stroke_margin + STROKE_HYSTERESIS
+            if away < position < limits.stroke - away:
+                state.active.discard(KIND_STROKE_END)
+            return []
+        return self._once(joint, state, KIND_STROKE_END, SEVERITY_ERROR, position, end,
+                          f'{joint}: stroke end: position {position * 1e3:.2f} mm within '
+                          f'{limits.stroke_margin * 1e3:.2f} mm of the {name} end at '
+                          f'{end * 1e3:.1f} mm')
+
+    def _check_tracking(self, joint: str, state: _Joint, t: float) -> list[Event]:
+        limits = state.limits
+        if state.reference is None or state.angle is None:
+            state.tracking_error = state.over_limit_since = None
+            return []
+        error = state.reference - state.angle
+        state.tracking_error = error
+        if abs(error) <= limits.tracking_error_limit:
+            state.over_limit_since = None
+            state.active.discard(KIND_TRACKING_ERROR)
+            return []
+        # A disabled drive does not track (its valve is in free mode); neither does a stop.
+        if self._stopped or not state.enabled:
+            state.over_limit_since = None
+            return []
+        if state.over_limit_since is None:
+            state.over_limit_since = t
+        duration = t - state.over_limit_since
+        if duration < limits.tracking_error_time:
+            return []
+        return self._once(joint, state, KIND_TRACKING_ERROR, SEVERITY_FATAL, abs(error),
+                          limits.tracking_error_limit,
+                          f'{joint}: tracking error {error:+.3f} rad '
+                          f'({math.degrees(error):+.1f} deg) over '
+                          f'{limits.tracking_error_limit:.3f} rad for {duration:.3f} s '
+                          f'(reference {state.reference:.3f} rad, measured '
+                          f'{state.angle:.3f} rad)')
+
+
+def _sensor_fault(limits: SafetyLimits, position: float, pressure_a: float, pressure_b: float,
+                  valve_mode: int) -> tuple[float, float, str] | None:
+    """Return value, bound crossed and description of an impossible state value, or None."""
+    for name, value in (('position', position), ('pressure_a', pressure_a),
+                        ('pressure_b', pressure_b)):
+        if not math.isfinite(value):
+            return value, math.nan, f'{name} is {value}'
+    low, high = -END_STOP_TOLERANCE, limits.stroke + END_STOP_TOLERANCE
+    if not low <= position <= high:
+        bound = low if position < low else high
+        return position, bound, (f'position {position:.4f} m beyond the stroke [0, '
+                                 f'{limits.stroke:g}] m by more than {END_STOP_TOLERANCE:g} m')
+    for name, value in (('pressure_a', pressure_a), ('pressure_b', pressure_b)):
+        if value < MIN_GAUGE_PRESSURE:
+            return value, MIN_GAUGE_PRESSURE, (f'{name} {_mpa(value)} below '
+                                               f'{_mpa(MIN_GAUGE_PRESSURE)} gauge')
+    if valve_mode not in (VALVE_FREE, VALVE_ASSIST, VALVE_RELIEF):
+        return float(valve_mode), float(VALVE_RELIEF), f'unknown valve mode {valve_mode}'
+    return None

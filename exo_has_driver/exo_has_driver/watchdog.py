@@ -1,0 +1,344 @@
+"""Safety watchdog node: watches every joint's HAS and stops them all on a fatal fault.
+
+Feeds each joint's HasState and HasCommand and the joint references, with their receive time on
+the node clock, to :class:`exo_has_driver.safety.Watchdog`, and checks staleness at ``rate``.
+Its events go out on ``safety_events`` (reliable, transient local, so that a node started later
+learns of a latched stop), a summary per joint on ``/diagnostics`` at 1 Hz, and, while a stop
+is latched, stop commands (motor speed 0, drive disabled) on every joint's ``has_command`` at
+``rate``, so the plants stop even if a controller is dead. A std_msgs/Empty on
+``safety_reset`` asks to release the stop::
+
+    ros2 run exo_has_driver watchdog --ros-args --params-file config/watchdog.yaml
+    ros2 topic pub --once /safety_reset std_msgs/msg/Empty
+"""
+
+from __future__ import annotations
+
+import sys
+from functools import partial
+
+from exo_has_driver import safety
+from exo_has_driver.errors import SafetyConfigError
+from exo_has_runtime import (
+    STARTUP_ERRORS,
+    DurabilityPolicy,
+    ExternalShutdownException,
+    FloatingPointRange,
+    HistoryPolicy,
+    IntegerRange,
+    Node,
+    ParameterDescriptor,
+    QoSProfile,
+    ReliabilityPolicy,
+    Time,
+    get_logger,
+    get_message,
+    init,
+    qos_profile_sensor_data,
+    spin,
+    try_shutdown,
+)
+from exo_has_runtime.topics import (
+    DIAGNOSTICS_TOPIC,
+    JOINT_NAMES,
+    JOINT_REFERENCE_TOPIC,
+    SAFETY_EVENT_DEPTH,
+    SAFETY_EVENT_TOPIC,
+    SAFETY_RESET_TOPIC,
+    check_joint,
+    has_command_topic,
+    has_state_topic,
+)
+from exo_has_sim.parameters import HasParameters, load_parameters
+
+HasCommand = get_message('exo_has_msgs/msg/HasCommand')
+HasState = get_message('exo_has_msgs/msg/HasState')
+SafetyEvent = get_message('exo_has_msgs/msg/SafetyEvent')
+JointState = get_message('sensor_msgs/msg/JointState')
+Empty = get_message('std_msgs/msg/Empty')
+DiagnosticArray = get_message('diagnostic_msgs/msg/DiagnosticArray')
+DiagnosticStatus = get_message('diagnostic_msgs/msg/DiagnosticStatus')
+KeyValue = get_message('diagnostic_msgs/msg/KeyValue')
+
+# The message's own constants: bytes under rclpy, int on the standalone backend.
+LEVELS = {safety.LEVEL_OK: DiagnosticStatus.OK, safety.LEVEL_WARN: DiagnosticStatus.WARN,
+          safety.LEVEL_ERROR: DiagnosticStatus.ERROR, safety.LEVEL_STALE: DiagnosticStatus.STALE}
+
+
+def _floats(low: float, high: float) -> list[FloatingPointRange]:
+    return [FloatingPointRange(from_value=low, to_value=high)]
+
+
+class Watchdog(Node):
+    """Safety watchdog of the HAS joints: events, diagnostics and stop commands."""
+
+    def __init__(self) -> None:
+        super().__init__('watchdog')
+        declare = self.declare_parameter
+        joints = list(declare('joints', list(JOINT_NAMES), ParameterDescriptor(
+            description=f'joints watched, among {", ".join(JOINT_NAMES)}',
+            read_only=True)).value)
+        rate = declare('rate', 200.0, ParameterDescriptor(
+            description='staleness check and stop-command rate [Hz]', read_only=True,
+            floating_point_range=_floats(1.0, 2000.0))).value
+        stale_periods = declare('stale_periods', safety.DEFAULT_STALE_PERIODS,
+                                ParameterDescriptor(
+            description='control periods without a state or command before it is stale',
+            read_only=True,
+            integer_range=[IntegerRange(from_value=1, to_value=10000, step=1)])).value
+        control_rate = declare('control_rate', 200.0, ParameterDescriptor(
+            description='control rate that sets a period [Hz] (the paper: 200)',
+            read_only=True, floating_point_range=_floats(1.0, 10000.0))).value
+        tracking_limit = declare('tracking_error_limit', safety.DEFAULT_TRACKING_ERROR_LIMIT,
+                                 ParameterDescriptor(
+            description='joint tracking error that is a fault [rad] (0.35: 20 deg, the '
+                        "paper's squatting error is within -1.5/+2.5 deg)", read_only=True,
+            floating_point_range=_floats(0.01, 3.2))).value
+        tracking_time = declare('tracking_error_time', safety.DEFAULT_TRACKING_ERROR_TIME,
+                                ParameterDescriptor(
+            description='how long the tracking error must stay over its limit [s]',
+            read_only=True, floating_point_range=_floats(0.0, 10.0))).value
+        ratio = declare('over_pressure_ratio', safety.DEFAULT_OVER_PRESSURE_RATIO,
+                        ParameterDescriptor(
+            description='over-pressure warning threshold as a fraction of the relief pressure',
+            read_only=True, floating_point_range=_floats(0.5, 1.0))).value
+        margin = declare('stroke_margin', safety.DEFAULT_STROKE_MARGIN, ParameterDescriptor(
+            description='distance from a cylinder end at which it counts as reached [m]',
+            read_only=True, floating_point_range=_floats(0.0, 0.01))).value
+        grace = declare('startup_grace', safety.DEFAULT_STARTUP_GRACE, ParameterDescriptor(
+            description='time for the first state and command after start or reset [s]',
+            read_only=True, floating_point_range=_floats(0.0, 600.0))).value
+        sources = {kind: declare(f'params_{kind}', kind, ParameterDescriptor(
+            description=f'{kind} HAS parameter set: hip, knee or a parameters YAML file',
+            read_only=True)).value for kind in ('hip', 'knee')}
+        self._joints = _checked_joints(joints)
+        params = {kind: _load(kind, source) for kind, source in sources.items()}
+        self._limits = {joint: safety.SafetyLimits.from_parameters(
+            params[_kind(joint)], over_pressure_ratio=ratio, stroke_margin=margin,
+            tracking_error_limit=tracking_limit, tracking_error_time=tracking_time,
+            stale_periods=stale_periods, control_rate=control_rate, startup_grace=grace)
+            for joint in self._joints}
+        # Built at the first non-zero clock reading: under use_sim_time the clock reads 0
+        # until /clock arrives, and the start-up grace must run from the real start.
+        self._core: safety.Watchdog | None = None
+        self._shortest_timeout = min(min(limit.state_timeout, limit.command_timeout)
+                                     for limit in self._limits.values())
+        self._last_check: float | None = None
+        self._deferred = False
+        self._last_stop_ns = -1
+        self._released_ns = -1
+
+        events_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=SAFETY_EVENT_DEPTH,
+                                reliability=ReliabilityPolicy.RELIABLE,
+                                durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self._event_publisher = self.create_publisher(SafetyEvent, SAFETY_EVENT_TOPIC,
+                                                      events_qos)
+        self._diagnostics_publisher = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC,
+                                                            10)
+        self._stop_publishers = {
+            joint: self.create_publisher(HasCommand, has_command_topic(joint),
+                                         qos_profile_sensor_data)
+            for joint in self._joints}
+        for joint in self._joints:
+            self.create_subscription(HasState, has_state_topic(joint),
+                                     partial(self._on_state, joint), qos_profile_sensor_data)
+            self.create_subscription(HasCommand, has_command_topic(joint),
+                                     partial(self._on_command, joint), qos_profile_sensor_data)
+        self.create_subscription(JointState, JOINT_REFERENCE_TOPIC, self._on_reference,
+                                 qos_profile_sensor_data)
+        self.create_subscription(Empty, SAFETY_RESET_TOPIC, self._on_reset, 10)
+        self.create_timer(1.0 / rate, self._on_tick)
+        self.create_timer(1.0, self._on_diagnostics)
+        first = next(iter(self._limits.values()))
+        self.get_logger().info(
+            f'watchdog ready: {", ".join(self._joints)}; checks and stops at {rate:g} Hz, '
+            f'stale after {self._shortest_timeout * 1e3:.0f} ms ({stale_periods} periods at '
+            f'{control_rate:g} Hz), start-up grace {grace:g} s, relief '
+            f'{first.relief_pressure * 1e-6:g} MPa, warning '
+            f'{first.warning_pressure * 1e-6:g} MPa, tracking {tracking_limit:g} rad for '
+            f'{tracking_time:g} s')
+
+    def _reading(self) -> tuple[Time, float, safety.Watchdog] | None:
+        """Return the time now, in seconds, and the core; None before the clock runs."""
+        now = self.get_clock().now()
+        if now.nanoseconds == 0:
+            return None
+        t = now.nanoseconds * 1e-9
+        if self._core is None:
+            self._core = safety.Watchdog(self._limits, t)
+        return now, t, self._core
+
+    def _on_state(self, joint: str, state: HasState) -> None:
+        reading = self._reading()
+        if reading is not None:
+            now, t, core = reading
+            self._emit(now, core.on_state(joint, t, state.position, state.pressure_a,
+                                          state.pressure_b, state.valve_mode))
+
+    def _on_command(self, joint: str, command: HasCommand) -> None:
+        reading = self._reading()
+        if reading is None:
+            return
+        now, t, core = reading
+        stamp_ns = command.header.stamp.sec * 1_000_000_000 + command.header.stamp.nanosec
+        if not command.enable and command.motor_speed == 0.0 \
+                and stamp_ns <= self._released_ns:
+            return  # one of our own stop commands, still in flight when the stop was released
+        self._emit(now, core.on_command(joint, t, command.motor_speed, command.enable))
+
+    def _on_reference(self, reference: JointState) -> None:
+        reading = self._reading()
+        if reading is None:
+            return
+        if len(reference.position) != len(reference.name):
+            self.get_logger().warning(
+                f'ignored a joint reference with {len(reference.name)} names and '
+                f'{len(reference.position)} positions', throttle_duration_sec=1.0)
+            return
+        now, t, core = reading
+        angles = dict(zip(reference.name, reference.position, strict=True))
+        self._emit(now, core.on_reference(t, angles))
+
+    def _on_reset(self, _: Empty) -> None:
+        reading = self._reading()
+        if reading is None:
+            return
+        now, t, core = reading
+        was_stopped = core.stopped
+        events = core.reset(t)
+        if was_stopped and not core.stopped:
+            self._released_ns = now.nanoseconds
+        self._emit(now, events)
+
+    def _on_tick(self) -> None:
+        reading = self._reading()
+        if reading is None:
+            return
+        now, t, core = reading
+        held_up = self._last_check is not None and t - self._last_check > self._shortest_timeout
+        self._last_check = t
+        if held_up and not self._deferred:
+            # The watchdog itself was held up (scheduling, GC): judge staleness at the next
+            # tick, once the messages queued meanwhile have been taken, not on stale evidence.
+            self._deferred = True
+        else:
+            self._deferred = False
+            self._emit(now, core.check(t))
+        if core.stopped:
+            self._send_stop(now)
+
+    def _on_diagnostics(self) -> None:
+        reading = self._reading()
+        if reading is None:
+            return
+        now, t, core = reading
+        array = DiagnosticArray()
+        array.header.stamp = now.to_msg()
+        array.status = [
+            DiagnosticStatus(level=LEVELS[summary.level],
+                             name=f'{self.get_name()}: {summary.joint}',
+                             message=summary.message, hardware_id=summary.joint,
+                             values=[KeyValue(key=key, value=value)
+                                     for key, value in summary.values])
+            for summary in core.diagnostics(t)]
+        self._diagnostics_publisher.publish(array)
+
+    def _emit(self, now: Time, events: list[safety.Event]) -> None:
+        """Publish and log events; a fatal one sends the stop commands at once."""
+        for event in events:
+            message = SafetyEvent(joint=event.joint, kind=event.kind, severity=event.severity,
+                                  value=event.value, limit=event.limit, latched=event.latched,
+                                  text=event.text)
+            message.header.stamp = now.to_msg()
+            self._event_publisher.publish(message)
+            if event.severity >= safety.SEVERITY_ERROR:
+                self.get_logger().error(event.text)
+            elif event.severity == safety.SEVERITY_WARN:
+                self.get_logger().warning(event.text)
+            else:
+                self.get_logger().info(event.text)
+        if any(event.severity == safety.SEVERITY_FATAL for event in events):
+            self._send_stop(now)
+
+    def _send_stop(self, now: Time) -> None:
+        """Command every joint to stop, once per instant."""
+        if now.nanoseconds == self._last_stop_ns:
+            return
+        self._last_stop_ns = now.nanoseconds
+        for joint, publisher in self._stop_publishers.items():
+            command = HasCommand(joint=joint, motor_speed=0.0, enable=False)
+            command.header.stamp = now.to_msg()
+            publisher.publish(command)
+
+
+def _checked_joints(joints: list[str]) -> list[str]:
+    """Return the joints if each is known and given once.
+
+    Raises
+    ------
+    SafetyConfigError
+        Naming the parameter and the joint at fault.
+
+    """
+    if not joints:
+        msg = f'parameter joints is empty: give some of {", ".join(JOINT_NAMES)}'
+        raise SafetyConfigError(msg)
+    for joint in joints:
+        try:
+            check_joint(joint)
+        except ValueError as exc:
+            msg = f'parameter joints: {exc}'
+            raise SafetyConfigError(msg) from None
+    if len(set(joints)) != len(joints):
+        msg = f'parameter joints names a joint twice: {joints}'
+        raise SafetyConfigError(msg)
+    return joints
+
+
+def _kind(joint: str) -> str:
+    """``'hip'`` or ``'knee'`` for a known joint name."""
+    return joint.rsplit('_', 1)[-1]
+
+
+def _load(kind: str, source: str) -> HasParameters:
+    """Load the parameter set of parameter ``params_<kind>`` and check it is one of that kind.
+
+    Raises
+    ------
+    SafetyConfigError
+        Naming the parameter, if the set cannot be loaded or is of the other joint type.
+
+    """
+    try:
+        params = load_parameters(source)
+    except ValueError as exc:
+        msg = f'parameter params_{kind}: {exc}'
+        raise SafetyConfigError(msg) from None
+    if params.joint_type != kind:
+        msg = f'parameter params_{kind}: {source} is a {params.joint_type} parameter set'
+        raise SafetyConfigError(msg)
+    return params
+
+
+def main(args: list[str] | None = None) -> None:
+    """Run the watchdog until interrupted."""
+    init(args=args)
+    node = None
+    try:
+        node = Watchdog()
+        spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except STARTUP_ERRORS as exc:
+        if node is not None:
+            raise  # not a bad configuration but a fault while running: keep its traceback
+        get_logger('watchdog').fatal(f'cannot start: {exc}')
+        raise SystemExit(1) from None
+    finally:
+        if node is not None:
+            node.destroy_node()
+        try_shutdown()
+
+
+if __name__ == '__main__':
+    main(sys.argv)

@@ -1,0 +1,356 @@
+import math
+
+import numpy as np
+import pytest
+
+from exo_has_driver import safety
+from exo_has_driver.errors import SafetyConfigError
+from exo_has_driver.safety import (
+    KIND_INVALID_COMMAND,
+    KIND_OVER_PRESSURE,
+    KIND_RESET,
+    KIND_SAFETY_VALVE_OPEN,
+    KIND_SENSOR_FAULT,
+    KIND_STALE_COMMAND,
+    KIND_STALE_STATE,
+    KIND_STROKE_END,
+    KIND_TRACKING_ERROR,
+    LEVEL_ERROR,
+    LEVEL_OK,
+    LEVEL_STALE,
+    LEVEL_WARN,
+    SEVERITY_ERROR,
+    SEVERITY_FATAL,
+    SEVERITY_INFO,
+    SEVERITY_WARN,
+    VALVE_ASSIST,
+    VALVE_RELIEF,
+    SafetyLimits,
+    Watchdog,
+)
+from exo_has_runtime.standalone import get_message
+from exo_has_runtime.topics import JOINT_NAMES
+from exo_has_sim.kinematics import Linkage
+from exo_has_sim.parameters import load_parameters
+
+PARAMS = {'hip': load_parameters('hip'), 'knee': load_parameters('knee')}
+LINKAGE = {kind: Linkage.from_parameters(params) for kind, params in PARAMS.items()}
+PERIOD = 0.005  # s, the 200 Hz control period
+MID = 0.065  # m, mid stroke
+RELIEF = 18.0e6  # Pa, both parameter sets
+
+
+def kind_of(joint):
+    return 'hip' if joint.endswith('hip') else 'knee'
+
+
+def make_watchdog(start=0.0, **options):
+    limits = {joint: SafetyLimits.from_parameters(PARAMS[kind_of(joint)], **options)
+              for joint in JOINT_NAMES}
+    return Watchdog(limits, start)
+
+
+def feed(watchdog, t, skip=(), position=MID, pressure_a=5.0e6, pressure_b=1.0e6,
+         valve_mode=VALVE_ASSIST):
+    """Send one period of normal states and enabled commands, then check; return the events."""
+    events = []
+    for joint in JOINT_NAMES:
+        if joint not in skip:
+            events += watchdog.on_state(joint, t, position, pressure_a, pressure_b, valve_mode)
+            events += watchdog.on_command(joint, t, 10.0, True)
+    return events + watchdog.check(t)
+
+
+def running(until=0.1, **options):
+    """Return a watchdog that has seen normal traffic up to ``until`` [s], and ``until``."""
+    watchdog = make_watchdog(**options)
+    for t in np.arange(0.0, until, PERIOD):
+        assert feed(watchdog, t) == []
+    return watchdog, until
+
+
+def only(events):
+    assert len(events) == 1, events
+    return events[0]
+
+
+def test_kinds_severities_valve_modes_and_levels_are_numbered_as_the_messages():
+    event_type = get_message('exo_has_msgs/msg/SafetyEvent')
+    state_type = get_message('exo_has_msgs/msg/HasState')
+    status_type = get_message('diagnostic_msgs/msg/DiagnosticStatus')
+    for name in dir(event_type):
+        if name.startswith(('KIND_', 'SEVERITY_')):
+            assert getattr(safety, name) == getattr(event_type, name), name
+    assert set(safety.KIND_NAMES) == {getattr(event_type, n) for n in dir(event_type)
+                                      if n.startswith('KIND_')}
+    for name in ('VALVE_FREE', 'VALVE_ASSIST', 'VALVE_RELIEF'):
+        assert getattr(safety, name) == getattr(state_type, name)
+    for name in ('OK', 'WARN', 'ERROR', 'STALE'):
+        assert getattr(safety, f'LEVEL_{name}') == getattr(status_type, name)
+
+
+def test_limits_come_from_the_parameter_sets_and_the_control_period():
+    limits = SafetyLimits.from_parameters(PARAMS['hip'])
+    assert limits.relief_pressure == RELIEF
+    assert limits.warning_pressure == pytest.approx(16.2e6)
+    assert limits.stroke == 0.13
+    assert limits.state_timeout == limits.command_timeout == pytest.approx(0.05)
+    assert limits.tracking_error_limit == pytest.approx(math.radians(20.0))
+    slow = SafetyLimits.from_parameters(PARAMS['knee'], stale_periods=4, control_rate=100.0)
+    assert slow.state_timeout == pytest.approx(0.04)
+
+
+@pytest.mark.parametrize(('option', 'value', 'named'), [
+    ('over_pressure_ratio', 1.5, 'over_pressure_ratio = 1.5 must be in (0, 1]'),
+    ('stale_periods', 0, 'stale_periods = 0 must be an integer'),
+    ('control_rate', 0.0, 'control_rate = 0.0 must be positive'),
+    ('stroke_margin', 0.05, 'stroke_margin = 0.05 must be in [0, stroke / 4'),
+    ('tracking_error_limit', -0.1, 'tracking_error_limit = -0.1 must be positive'),
+    ('startup_grace', math.nan, 'startup_grace = nan must be a finite number'),
+])
+def test_a_setting_out_of_range_fails_naming_it(option, value, named):
+    with pytest.raises(SafetyConfigError, match=named.replace('(', r'\(').replace('[', r'\[')):
+        SafetyLimits.from_parameters(PARAMS['hip'], **{option: value})
+
+
+def test_an_unknown_joint_is_refused_naming_the_watched_ones():
+    watchdog = make_watchdog()
+    with pytest.raises(SafetyConfigError, match="'left_ankle' is not watched: watched are "
+                                                'left_hip, left_knee'):
+        watchdog.on_state('left_ankle', 0.0, MID, 0.0, 0.0, VALVE_ASSIST)
+
+
+def test_a_plausible_squatting_session_raises_no_event():
+    # The paper's squat (hip 40 deg, knee 70 deg at 0.5 Hz) tracked with a 30 ms lag and the
+    # paper's worst offsets (+2.5 deg left, -1.5 deg right), pressures up to 14 MPa.
+    watchdog = make_watchdog()
+    depth = {'hip': math.radians(40.0), 'knee': math.radians(70.0)}
+    offset = {'left': math.radians(2.5), 'right': math.radians(-1.5)}
+    events = []
+    for t in np.arange(0.0, 6.0, PERIOD):
+        def reference(joint, at):
+            return depth[kind_of(joint)] * 0.5 * (1.0 - math.cos(math.pi * max(at, 0.0)))
+        events += watchdog.on_reference(t, {j: reference(j, t) for j in JOINT_NAMES})
+        for joint in JOINT_NAMES:
+            angle = reference(joint, t - 0.03) + offset[joint.split('_')[0]]
+            position = float(LINKAGE[kind_of(joint)].position(angle))
+            pressure = 8.0e6 + 6.0e6 * math.sin(2.0 * math.pi * 0.5 * t)
+            events += watchdog.on_state(joint, t, position, pressure, 0.3e6, VALVE_ASSIST)
+            events += watchdog.on_command(joint, t, 150.0 * math.sin(math.pi * t), True)
+        events += watchdog.check(t)
+    assert events == []
+    assert all(d.level == LEVEL_OK and d.message == 'ok' for d in watchdog.diagnostics(6.0))
+
+
+@pytest.mark.parametrize(('pressure_a', 'pressure_b', 'valve_mode', 'value'), [
+    (RELIEF, 1.0e6, VALVE_ASSIST, RELIEF),
+    (0.2e6, 18.3e6, VALVE_ASSIST, 18.3e6),
+    (12.0e6, 0.5e6, VALVE_RELIEF, 12.0e6),
+])
+def test_an_open_safety_valve_is_fatal_once_and_latches(pressure_a, pressure_b, valve_mode,
+                                                         value):
+    watchdog, t = running()
+    event = only(watchdog.on_state('left_knee', t, MID, pressure_a, pressure_b, valve_mode))
+    assert (event.joint, event.kind, event.severity) == ('left_knee', KIND_SAFETY_VALVE_OPEN,
+                                                         SEVERITY_FATAL)
+    assert (event.value, event.limit, event.latched) == (value, RELIEF, True)
+    assert 'safety valve open' in event.text and watchdog.stopped
+    assert watchdog.cause == event
+    for step in range(1, 20):  # persisting: not reported again, and no over-pressure beside it
+        assert watchdog.on_state('left_knee', t + step * PERIOD, MID, pressure_a, pressure_b,
+                                 valve_mode) == []
+
+
+def test_over_pressure_warns_once_and_again_only_after_it_has_cleared():
+    watchdog, t = running()
+    pressures = [16.5e6, 16.6e6, 16.0e6, 17.0e6, 15.0e6, 16.4e6]
+    raised = [watchdog.on_state('right_hip', t + i * PERIOD, MID, p, 0.0, VALVE_ASSIST)
+              for i, p in enumerate(pressures)]
+    assert [len(events) for events in raised] == [1, 0, 0, 0, 0, 1]
+    event = raised[0][0]
+    assert (event.kind, event.severity, event.value) == (KIND_OVER_PRESSURE, SEVERITY_WARN,
+                                                         16.5e6)
+    assert event.limit == pytest.approx(0.9 * RELIEF) and not event.latched
+    assert not watchdog.stopped
+
+
+def test_reaching_a_stroke_end_is_an_error_once_per_entry():
+    watchdog, t = running()
+    positions = [0.1297, 0.1299, 0.1298, 0.12, 0.0004, 0.0001, 0.05]
+    raised = [watchdog.on_state('left_hip', t + i * PERIOD, x, 5.0e6, 1.0e6, VALVE_ASSIST)
+              for i, x in enumerate(positions)]
+    assert [len(events) for events in raised] == [1, 0, 0, 0, 1, 0, 0]
+    extended, retracted = raised[0][0], raised[4][0]
+    assert (extended.kind, extended.severity) == (KIND_STROKE_END, SEVERITY_ERROR)
+    assert (extended.value, extended.limit) == (0.1297, 0.13)
+    assert (retracted.value, retracted.limit) == (0.0004, 0.0)
+    assert not watchdog.stopped
+
+
+def tracking_states(watchdog, joint, start, duration, error):
+    """Feed states of ``joint`` off a mid-range reference by ``error`` [rad]; return events."""
+    reference = {'hip': 0.3, 'knee': 1.0}[kind_of(joint)]
+    position = float(LINKAGE[kind_of(joint)].position(reference - error))
+    events = []
+    for t in np.arange(start, start + duration, PERIOD):
+        events += watchdog.on_reference(t, {joint: reference})
+        events += watchdog.on_state(joint, t, position, 5.0e6, 1.0e6, VALVE_ASSIST)
+    return events
+
+
+def test_a_tracking_error_over_the_limit_is_fatal_only_when_it_persists():
+    watchdog, t = running()
+    assert tracking_states(watchdog, 'right_knee', t, 0.15, 0.4) == []  # too short
+    assert tracking_states(watchdog, 'right_knee', t + 0.15, 0.05, 0.1) == []  # back in
+    event = only(tracking_states(watchdog, 'right_knee', t + 0.2, 0.5, -0.4))
+    assert (event.joint, event.kind, event.severity) == ('right_knee', KIND_TRACKING_ERROR,
+                                                         SEVERITY_FATAL)
+    assert event.value == pytest.approx(0.4)
+    assert event.limit == pytest.approx(math.radians(20.0))
+    assert 'for 0.200 s' in event.text and event.latched
+
+
+def test_a_disabled_drive_is_not_held_to_its_reference():
+    watchdog, t = running()
+    watchdog.on_command('left_hip', t, 0.0, False)
+    assert tracking_states(watchdog, 'left_hip', t, 0.5, 0.5) == []
+    assert not watchdog.stopped
+
+
+def test_a_joint_whose_node_died_goes_stale_once():
+    watchdog, t = running()
+    events = []
+    for step in range(40):  # left_hip's plant and controller are gone; the others run on
+        events += feed(watchdog, t + step * PERIOD, skip=('left_hip',))
+    stale_state, stale_command = events
+    assert (stale_state.joint, stale_state.kind, stale_state.severity) == (
+        'left_hip', KIND_STALE_STATE, SEVERITY_FATAL)
+    assert stale_state.limit == pytest.approx(0.05)
+    assert 0.05 < stale_state.value <= 0.05 + PERIOD + 1e-9
+    assert stale_state.latched and watchdog.stopped
+    assert stale_command.kind == KIND_STALE_COMMAND  # in the same check: not yet stopped then
+
+
+def test_nothing_at_all_within_the_startup_grace_is_stale():
+    watchdog = make_watchdog(start=100.0, startup_grace=2.0)
+    assert watchdog.check(101.9) == []
+    events = watchdog.check(102.1)
+    assert {(e.joint, e.kind) for e in events} == {
+        (j, k) for j in JOINT_NAMES for k in (KIND_STALE_STATE, KIND_STALE_COMMAND)}
+    assert events[0].value == pytest.approx(2.1) and events[0].limit == 2.0
+    assert watchdog.check(102.2) == []
+
+
+@pytest.mark.parametrize('speed', [math.nan, math.inf, -math.inf])
+def test_a_nan_or_infinite_command_is_an_invalid_command(speed):
+    watchdog, t = running()
+    event = only(watchdog.on_command('right_knee', t, speed, True))
+    assert (event.kind, event.severity, event.latched) == (KIND_INVALID_COMMAND,
+                                                          SEVERITY_FATAL, True)
+    assert math.isnan(event.limit) and (event.value == speed or math.isnan(event.value))
+
+
+@pytest.mark.parametrize(('position', 'pressure_a', 'pressure_b', 'valve_mode', 'limit'), [
+    (math.nan, 5.0e6, 1.0e6, VALVE_ASSIST, math.nan),
+    (MID, math.inf, 1.0e6, VALVE_ASSIST, math.nan),
+    (MID, 5.0e6, math.nan, VALVE_ASSIST, math.nan),
+    (0.14, 5.0e6, 1.0e6, VALVE_ASSIST, 0.132),
+    (MID, -0.5e6, 1.0e6, VALVE_ASSIST, -0.12e6),
+    (MID, 5.0e6, 1.0e6, 7, 2.0),
+])
+def test_an_impossible_state_value_is_a_sensor_fault(position, pressure_a, pressure_b,
+                                                      valve_mode, limit):
+    watchdog, t = running()
+    event = only(watchdog.on_state('left_knee', t, position, pressure_a, pressure_b,
+                                   valve_mode))
+    assert (event.kind, event.severity) == (KIND_SENSOR_FAULT, SEVERITY_FATAL)
+    assert event.limit == pytest.approx(limit, nan_ok=True)
+    assert watchdog.on_state('left_knee', t, position, pressure_a, pressure_b,
+                             valve_mode) == []
+
+
+def test_while_stopped_commands_are_ignored_but_new_fatal_conditions_are_reported():
+    watchdog, t = running()
+    only(watchdog.on_command('left_hip', t, math.nan, True))
+    assert watchdog.on_command('left_hip', t, math.nan, True) == []  # a stop command now
+    events = []
+    for step in range(1, 100):  # states flow, no command at all: no stale command
+        events += feed(watchdog, t + step * PERIOD, skip=JOINT_NAMES)
+        for joint in JOINT_NAMES:
+            events += watchdog.on_state(joint, t + step * PERIOD, MID, 5.0e6, 1.0e6,
+                                        VALVE_ASSIST)
+    assert events == []
+    event = only(watchdog.on_state('right_hip', t + 0.5, MID, RELIEF, 0.0, VALVE_RELIEF))
+    assert event.kind == KIND_SAFETY_VALVE_OPEN and event.latched
+    assert watchdog.cause.kind == KIND_INVALID_COMMAND  # the first cause is kept
+
+
+def test_a_reset_is_refused_while_a_fatal_condition_holds_and_releases_the_latch_after():
+    watchdog, t = running()
+    only(watchdog.on_state('left_knee', t, MID, RELIEF, 0.0, VALVE_RELIEF))
+    refused = only(watchdog.reset(t + 0.001))
+    assert (refused.kind, refused.severity, refused.latched) == (KIND_RESET, SEVERITY_WARN,
+                                                                True)
+    assert 'reset refused: left_knee: safety valve still open' in refused.text
+    assert watchdog.stopped
+    assert feed(watchdog, t + 0.002) == []  # the pressure is down again
+    released = only(watchdog.reset(t + 0.003))
+    assert (released.joint, released.kind, released.severity, released.latched) == (
+        '', KIND_RESET, SEVERITY_INFO, False)
+    assert 'stop released (latched by left_knee: safety valve open' in released.text
+    assert not watchdog.stopped and watchdog.cause is None
+    assert math.isnan(released.value) and math.isnan(released.limit)
+
+
+def test_a_reset_is_refused_while_a_joint_is_still_stale():
+    watchdog, t = running()
+    events = []
+    for step in range(20):
+        events += feed(watchdog, t + step * PERIOD, skip=('right_knee',))
+    assert {e.kind for e in events} == {KIND_STALE_STATE, KIND_STALE_COMMAND}
+    refused = only(watchdog.reset(t + 0.1))
+    assert refused.severity == SEVERITY_WARN
+    assert 'right_knee: no state for 0.1' in refused.text
+    assert feed(watchdog, t + 0.101) == []
+    assert only(watchdog.reset(t + 0.102)).severity == SEVERITY_INFO
+
+
+def test_after_a_reset_commands_have_the_startup_grace_again_and_are_checked():
+    watchdog, t = running(startup_grace=1.0)
+    only(watchdog.on_command('left_hip', t, math.nan, True))
+    assert only(watchdog.reset(t + 0.01)).severity == SEVERITY_INFO
+    for step in range(1, 150):  # controllers take 0.75 s to come back: within the grace
+        at = t + 0.01 + step * PERIOD
+        for joint in JOINT_NAMES:
+            assert watchdog.on_state(joint, at, MID, 5.0e6, 1.0e6, VALVE_ASSIST) == []
+        assert watchdog.check(at) == []
+    assert feed(watchdog, t + 0.8) == []
+    event = only(watchdog.on_command('left_hip', t + 0.801, math.nan, True))
+    assert event.kind == KIND_INVALID_COMMAND
+
+
+def test_a_reset_without_a_latched_stop_says_so():
+    watchdog, t = running()
+    event = only(watchdog.reset(t))
+    assert (event.kind, event.severity, event.latched) == (KIND_RESET, SEVERITY_INFO, False)
+    assert event.text == 'reset: no stop was latched'
+
+
+def test_diagnostics_give_each_joint_a_level_message_and_values():
+    watchdog, t = running()
+    watchdog.on_state('left_knee', t, MID, 16.5e6, 0.0, VALVE_ASSIST)
+    levels = {d.joint: d for d in watchdog.diagnostics(t)}
+    assert levels['left_knee'].level == LEVEL_WARN
+    assert levels['left_knee'].message == 'over-pressure'
+    assert levels['left_hip'].level == LEVEL_OK
+    assert dict(levels['left_hip'].values)['pressure_a [Pa]'] == '5000000'
+    assert dict(levels['left_hip'].values)['latched'] == 'false'
+    watchdog.on_command('right_hip', t, math.nan, True)
+    levels = {d.joint: d for d in watchdog.diagnostics(t + 0.2)}
+    assert levels['right_hip'].level == LEVEL_STALE
+    assert levels['right_hip'].message.startswith('no state for 0.2')
+    assert 'invalid command; stopped until reset' in levels['right_hip'].message
+    feed(watchdog, t + 0.2)
+    levels = {d.joint: d for d in watchdog.diagnostics(t + 0.2)}
+    assert levels['left_hip'].level == LEVEL_ERROR
+    assert levels['left_hip'].message == 'stopped until reset'

@@ -1,0 +1,187 @@
+"""Record topics to a bag (rosbag2, MCAP): the CDR bytes as received, stamped on arrival.
+
+Each message is written as received (raw, never deserialised) with the node clock's time of
+arrival as its bag time, so ``use_sim_time`` records simulated time (0 before the first
+``/clock``). Topics and types come from graph discovery, checked every ``discovery_period``; a
+topic is subscribed once it has a publisher, with the QoS :mod:`exo_has_runtime.recording`
+derives from the publishers' offers. The bag is flushed as a complete chunk every
+``flush_period``, so a killed recorder loses at most that much (``exo-has bag recover``), and is
+closed (``metadata.yaml`` written) on SIGINT and SIGTERM.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+from datetime import datetime
+from typing import Any
+
+from exo_has_runtime import (
+    Clock,
+    ClockType,
+    DurabilityPolicy,
+    ExternalShutdownException,
+    FloatingPointRange,
+    HistoryPolicy,
+    InvalidParameterValueException,
+    Node,
+    ParameterDescriptor,
+    QoSProfile,
+    ReliabilityPolicy,
+    get_message,
+    init,
+    spin,
+    try_shutdown,
+)
+from exo_has_runtime.bag import BagWriter, offered_qos
+from exo_has_runtime.errors import BagError
+from exo_has_runtime.recording import (
+    QosChoice,
+    bag_path,
+    subscription_qos,
+    topics_to_record,
+    weakened_qos,
+)
+
+
+class Recorder(Node):
+    """Subscribe to the topics of the graph (or the given ones) and write them to a bag."""
+
+    def __init__(self) -> None:
+        super().__init__('recorder')
+        self.declare_parameter('output', '', ParameterDescriptor(
+            description='bag directory to create; empty: '
+                        '~/.ros/exo_has_bags/session_<YYYYmmdd_HHMMSS>'))
+        self.declare_parameter('topics', [], ParameterDescriptor(
+            description='topics to record (string array); empty: every topic of the graph '
+                        'but the hidden ones and ros_discovery_info', dynamic_typing=True))
+        self.declare_parameter('discovery_period', 0.5, ParameterDescriptor(
+            description='period of the search for new topics [s]',
+            floating_point_range=[FloatingPointRange(from_value=0.01, to_value=60.0)]))
+        self.declare_parameter('flush_period', 1.0, ParameterDescriptor(
+            description='period of the writes to disk [s]: what a crash may lose',
+            floating_point_range=[FloatingPointRange(from_value=0.05, to_value=60.0)]))
+        self.declare_parameter('compress', False, ParameterDescriptor(
+            description='compress the chunks with zstd'))
+        topics = self.get_parameter('topics').value or []
+        if not isinstance(topics, list) or not all(isinstance(t, str) for t in topics):
+            msg = f'parameter topics must be a list of topic names, got {topics!r}'
+            raise InvalidParameterValueException(msg)
+        self._wanted = {self.resolve_topic_name(topic) for topic in topics} or None
+        self._path = bag_path(self.get_parameter('output').value, datetime.now())
+        self._bag: BagWriter | None = BagWriter(
+            self._path, compress=bool(self.get_parameter('compress').value))
+        # Topic: (subscription, the QoS it asks for).
+        self._recorded: dict[str, tuple[Any, QosChoice]] = {}
+        self._given_up: set[str] = set()
+        # Discovery and disk writes run on wall time, also while simulated time stands still.
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.create_timer(self.get_parameter('discovery_period').value, self._discover,
+                          clock=steady)
+        self.create_timer(self.get_parameter('flush_period').value, self._flush, clock=steady)
+        wanted = ', '.join(sorted(self._wanted)) if self._wanted else 'every topic'
+        self.get_logger().info(f'opened bag {self._path}; waiting for publishers on {wanted}')
+        self._discover()
+
+    def _discover(self) -> None:
+        new, ambiguous = topics_to_record(self.get_topic_names_and_types(), self._wanted,
+                                          {*self._recorded, *self._given_up})
+        for topic, types in ambiguous:
+            self._give_up(topic, f'it carries several types ({", ".join(types)})')
+        for topic, (subscription, choice) in list(self._recorded.items()):
+            weaker = weakened_qos(choice, self._offers(topic))
+            if weaker is not None:
+                self.get_logger().warning(
+                    f'{topic}: a publisher offers less than the recording asked for; '
+                    f'subscribing again {_describe(weaker)}')
+                self.destroy_subscription(subscription)
+                self._recorded[topic] = (self.create_subscription(
+                    subscription.msg_type, topic, subscription.callback, _profile(weaker),
+                    raw=True), weaker)
+        added = 0
+        for topic, msgtype in new:
+            offers = self._offers(topic)
+            if offers and self._subscribe(topic, msgtype, offers):
+                added += 1
+        if added:
+            self.get_logger().info(
+                f'recording {len(self._recorded)} topics to {self._path}')
+
+    def _subscribe(self, topic: str, msgtype: str, offers: list[Any]) -> bool:
+        assert self._bag is not None
+        try:
+            message_type = get_message(msgtype)
+            self._bag.add_topic(topic, msgtype, [offered_qos(offer) for offer in offers])
+        except Exception as exc:  # one topic of an unknown type must not stop the others
+            self._give_up(topic, str(exc))
+            return False
+        choice = subscription_qos(offers)
+        self._recorded[topic] = (self.create_subscription(
+            message_type, topic, self._writer_for(topic), _profile(choice), raw=True), choice)
+        return True
+
+    def _offers(self, topic: str) -> list[Any]:
+        return [info.qos_profile for info in self.get_publishers_info_by_topic(topic)]
+
+    def _writer_for(self, topic: str) -> Callable[[bytes], None]:
+        bag, clock = self._bag, self.get_clock()
+        assert bag is not None
+
+        def on_message(data: bytes) -> None:
+            bag.write(topic, clock.now().nanoseconds, data)
+        return on_message
+
+    def _give_up(self, topic: str, reason: str) -> None:
+        self._given_up.add(topic)
+        self.get_logger().warning(f'not recording {topic}: {reason}')
+
+    def _flush(self) -> None:
+        if self._bag is not None:
+            self._bag.flush()
+
+    def destroy_node(self) -> None:
+        """Close the bag (metadata.yaml written), log its counts, and leave the graph."""
+        bag, self._bag = getattr(self, '_bag', None), None
+        if bag is not None:
+            try:
+                counts = bag.close()
+            except BagError as exc:
+                self.get_logger().error(str(exc))
+            else:
+                listed = ', '.join(f'{topic}: {count}' for topic, count in sorted(counts.items()))
+                self.get_logger().info(f'closed {bag.path}: {sum(counts.values())} messages'
+                                       + (f' ({listed})' if listed else ''))
+        super().destroy_node()
+
+
+def _profile(choice: QosChoice) -> QoSProfile:
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=choice.depth,
+        reliability=ReliabilityPolicy.RELIABLE if choice.reliable
+        else ReliabilityPolicy.BEST_EFFORT,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if choice.transient_local
+        else DurabilityPolicy.VOLATILE)
+
+
+def _describe(choice: QosChoice) -> str:
+    return (f'{"reliable" if choice.reliable else "best effort"}, '
+            f'{"transient local" if choice.transient_local else "volatile"}')
+
+
+def main(args: list[str] | None = None) -> None:
+    """Record until interrupted (SIGINT or SIGTERM), then close the bag."""
+    init(args=args)
+    node = None
+    try:
+        node = Recorder()
+        spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        try_shutdown()
+
+
+if __name__ == '__main__':
+    main(sys.argv)

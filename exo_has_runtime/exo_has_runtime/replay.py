@@ -1,0 +1,198 @@
+"""``exo-has replay BAG``: publish a bag's messages again, as recorded, at a chosen rate.
+
+Each message's CDR bytes go out unchanged on its topic, at its bag time since the first
+replayed message divided by ``--rate``, measured on the steady clock; each topic is published
+with the QoS its bag recorded (:func:`exo_has_runtime.recording.replay_qos`). A 1 ms timer
+does the publishing, so messages leave up to about a millisecond late (more on a loaded
+machine), never early.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Iterator, Sequence
+from contextlib import ExitStack
+from pathlib import Path
+
+from exo_has_runtime import (
+    Clock,
+    ClockType,
+    DurabilityPolicy,
+    ExternalShutdownException,
+    HistoryPolicy,
+    Node,
+    QoSProfile,
+    ReliabilityPolicy,
+    get_message,
+    init,
+    spin,
+    try_shutdown,
+)
+from exo_has_runtime.bag import BagMessage, bag_topics, read_messages
+from exo_has_runtime.errors import BagError, ReplayError
+from exo_has_runtime.recording import (
+    check_rate,
+    replay_offset_ns,
+    replay_qos,
+    select_replay_topics,
+)
+
+_TICK_S = 0.001  # publishing resolution
+
+
+class Replayer(Node):
+    """Publish the messages of a bag with their recorded timing scaled by a rate factor.
+
+    Parameters
+    ----------
+    bag : Path
+        The bag directory.
+    topics : Sequence[str]
+        Its topics to replay (fully qualified).
+    rate : float
+        Playback speed factor (2 replays twice as fast).
+    loop : bool
+        Start again at the end, rather than shut down.
+    delay_s : float
+        Wait this long [s] before the first message.
+    wait_for_subscribers : bool
+        Start only once every topic has a subscriber.
+
+    Raises
+    ------
+    ReplayError
+        If no topic can be published (their types unknown here).
+
+    """
+
+    def __init__(self, bag: Path, topics: Sequence[str], rate: float, loop: bool = False,
+                 delay_s: float = 0.0, wait_for_subscribers: bool = False) -> None:
+        super().__init__('replay')
+        self._bag = bag
+        self._speed = rate
+        self._looping = loop
+        self._wait_for_subscribers = wait_for_subscribers
+        recorded = {topic.topic: topic for topic in bag_topics(bag)}
+        self._outputs = {}
+        for topic in topics:
+            try:
+                message_type = get_message(recorded[topic].msgtype)
+            except Exception as exc:  # a type unknown here leaves its topic out, not the rest
+                self.get_logger().warning(f'not replaying {topic}: {exc}')
+                continue
+            choice = replay_qos(recorded[topic].offered_qos)
+            self._outputs[topic] = self.create_publisher(message_type, topic, QoSProfile(
+                history=HistoryPolicy.KEEP_LAST, depth=choice.depth,
+                reliability=ReliabilityPolicy.RELIABLE if choice.reliable
+                else ReliabilityPolicy.BEST_EFFORT,
+                durability=DurabilityPolicy.TRANSIENT_LOCAL if choice.transient_local
+                else DurabilityPolicy.VOLATILE))
+        if not self._outputs:
+            msg = f'none of the topics of {bag} can be published here'
+            raise ReplayError(msg)
+        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self._ready_ns = self._steady.now().nanoseconds + round(delay_s * 1e9)
+        self._stack = ExitStack()
+        self._messages: Iterator[BagMessage] = iter(())
+        self._next: BagMessage | None = None
+        self._start_ns: int | None = None
+        self._first_ns = 0
+        self._published = 0
+        self._waiting_logged = False
+        self.create_timer(_TICK_S, self._on_tick, clock=self._steady)
+        self.get_logger().info(f'replaying {len(self._outputs)} topics of {bag} at rate '
+                               f'{rate:g}' + (', looping' if loop else ''))
+
+    def _open(self) -> int:
+        """Open the bag at its first message; return the steady time of the replay's start."""
+        self._stack.close()
+        self._messages = self._stack.enter_context(read_messages(self._bag, self._outputs))
+        self._next = next(self._messages, None)
+        self._first_ns = self._next.timestamp_ns if self._next is not None else 0
+        # After opening, which takes a while: the first message is due now.
+        self._start_ns = self._steady.now().nanoseconds
+        return self._start_ns
+
+    def _on_tick(self) -> None:
+        now_ns = self._steady.now().nanoseconds
+        if self._start_ns is None:
+            if now_ns < self._ready_ns or not self._subscribed():
+                return
+            now_ns = self._open()
+        assert self._start_ns is not None
+        elapsed_ns = now_ns - self._start_ns
+        while self._next is not None and elapsed_ns >= replay_offset_ns(
+                self._next.timestamp_ns, self._first_ns, self._speed):
+            self._outputs[self._next.topic].publish(self._next.data)
+            self._published += 1
+            self._next = next(self._messages, None)
+        if self._next is None:
+            if self._looping and self._published:
+                self._open()
+                return
+            self.get_logger().info(f'replayed {self._published} messages')
+            try_shutdown()
+
+    def _subscribed(self) -> bool:
+        if not self._wait_for_subscribers:
+            return True
+        waiting = [t for t, p in self._outputs.items() if p.get_subscription_count() == 0]
+        if waiting and not self._waiting_logged:
+            self._waiting_logged = True
+            self.get_logger().info(f'waiting for subscribers on {", ".join(waiting)}')
+        return not waiting
+
+    def destroy_node(self) -> None:
+        """Close the bag and leave the graph."""
+        stack = getattr(self, '_stack', None)
+        if stack is not None:
+            stack.close()
+        super().destroy_node()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``exo-has replay BAG [--rate F] [--loop] [--topics T ...] [--delay S]``."""
+    parser = argparse.ArgumentParser(prog='exo-has replay', description=__doc__.splitlines()[0])
+    parser.add_argument('bag', help='bag directory')
+    parser.add_argument('--rate', type=float, default=1.0,
+                        help='speed factor: 2 replays twice as fast (1)')
+    parser.add_argument('--loop', action='store_true', help='start again at the end')
+    parser.add_argument('--topics', nargs='+', default=None, metavar='TOPIC',
+                        help='replay only these topics (default: all)')
+    parser.add_argument('--delay', type=float, default=0.0,
+                        help='seconds to wait before the first message (0)')
+    parser.add_argument('--wait-for-subscribers', action='store_true',
+                        help='start once every replayed topic has a subscriber')
+    args, ros_args = parser.parse_known_args(sys.argv[1:] if argv is None else argv)
+    try:
+        rate = check_rate(args.rate)
+        if not args.delay >= 0.0:
+            msg = f'the delay must be zero or positive, got {args.delay}'
+            raise ReplayError(msg)
+        available = {topic.topic: topic.msgtype for topic in bag_topics(args.bag)}
+        topics = select_replay_topics(available, args.topics)
+    except (BagError, ReplayError) as exc:
+        print(f'exo-has replay: {exc}', file=sys.stderr)
+        return 1
+    init(args=['exo-has-replay', *ros_args])
+    node = None
+    code = 0
+    try:
+        node = Replayer(Path(args.bag).expanduser(), topics, rate, args.loop, args.delay,
+                        args.wait_for_subscribers)
+        spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ReplayError as exc:
+        print(f'exo-has replay: {exc}', file=sys.stderr)
+        code = 1
+    finally:
+        if node is not None:
+            node.destroy_node()
+        try_shutdown()
+    return code
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,148 @@
+"""Plant node: one simulated HAS joint, stepped in real (or simulated) time.
+
+Subscribes to the joint's HasCommand and to its external load (std_msgs/Float64, N), integrates
+the model of :mod:`exo_has_sim.model` over the elapsed clock time at every tick, and publishes
+the HasState with the valve mode. Run one per joint::
+
+    ros2 run exo_has_sim plant --ros-args -p joint:=left_hip -r __node:=left_hip_plant
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+
+from exo_has_runtime import (
+    STARTUP_ERRORS,
+    ExternalShutdownException,
+    FloatingPointRange,
+    Node,
+    ParameterDescriptor,
+    get_logger,
+    get_message,
+    init,
+    qos_profile_sensor_data,
+    spin,
+    try_shutdown,
+)
+from exo_has_runtime.topics import (
+    JOINT_NAMES,
+    check_joint,
+    has_command_topic,
+    has_state_topic,
+    load_force_topic,
+)
+from exo_has_sim.loads import default_load_force
+from exo_has_sim.parameters import load_parameters
+from exo_has_sim.plant import Plant, joint_type_of
+
+HasCommand = get_message('exo_has_msgs/msg/HasCommand')
+HasState = get_message('exo_has_msgs/msg/HasState')
+Float64 = get_message('std_msgs/msg/Float64')
+
+
+class PlantNode(Node):
+    """A simulated HAS joint: HasCommand and load in, HasState out."""
+
+    def __init__(self) -> None:
+        super().__init__('has_plant')
+        joint = self.declare_parameter('joint', '', ParameterDescriptor(
+            description=f'joint simulated: one of {", ".join(JOINT_NAMES)}',
+            read_only=True)).value
+        if not joint:
+            msg = f'parameter joint is required: one of {", ".join(JOINT_NAMES)}'
+            raise ValueError(msg)
+        self.joint = check_joint(joint)
+        params_source = self.declare_parameter('params', joint_type_of(joint), ParameterDescriptor(
+            description='HAS parameter set: hip, knee or a parameters YAML file',
+            read_only=True)).value
+        rate = self.declare_parameter('rate', 200.0, ParameterDescriptor(
+            description='state publication and integration rate [Hz]', read_only=True,
+            floating_point_range=[FloatingPointRange(from_value=1.0, to_value=2000.0)])).value
+        initial_angle = self.declare_parameter('initial_angle', 0.0, ParameterDescriptor(
+            description='joint angle at start [rad], flexion positive (0: standing)',
+            read_only=True)).value
+        params = load_parameters(params_source)
+        load = self.declare_parameter('load_force', default_load_force(
+            params, standing_angle=initial_angle), ParameterDescriptor(
+            description='external rod force [N], positive pushing the cylinder in; the default '
+                        'is the peak normative extensor moment for 50 kg at the standing lever '
+                        'arm (exo_has_sim.loads); a message on <joint>/load_force replaces it',
+            floating_point_range=[FloatingPointRange(from_value=-1.0e5, to_value=1.0e5)])).value
+        self._plant = Plant(self.joint, params, initial_angle=initial_angle, load_force=load)
+        self._period = 1.0 / rate
+        self._plant.warm_up()  # compiles or loads the model's machine code before the first tick
+
+        self._publisher = self.create_publisher(HasState, has_state_topic(self.joint),
+                                                qos_profile_sensor_data)
+        self.create_subscription(HasCommand, has_command_topic(self.joint), self._on_command,
+                                 qos_profile_sensor_data)
+        self.create_subscription(Float64, load_force_topic(self.joint), self._on_load, 10)
+        self._last_ns: int | None = None
+        self._ticks = 0
+        self._missed = 0
+        self.create_timer(self._period, self._on_tick)
+        self.get_logger().info(
+            f'{self.joint} plant ready ({self._plant.params.joint_type} parameters from '
+            f'{params_source}), {rate:g} Hz, load {load:.1f} N')
+
+    def _on_command(self, command: HasCommand) -> None:
+        problem = self._plant.command(command.joint, command.motor_speed, command.enable)
+        if problem:
+            self.get_logger().error(problem, throttle_duration_sec=1.0)
+
+    def _on_load(self, message: Float64) -> None:
+        if not math.isfinite(message.data):
+            self.get_logger().error(f'ignored a non-finite load force {message.data!r} N',
+                                    throttle_duration_sec=1.0)
+            return
+        self._plant.set_load(message.data)
+
+    def _on_tick(self) -> None:
+        now = self.get_clock().now()
+        now_ns = now.nanoseconds
+        if self._last_ns is None or now_ns <= self._last_ns:
+            # First tick, or simulated time has not advanced: nothing to integrate yet.
+            self._last_ns = now_ns if self._last_ns is None else self._last_ns
+            return
+        elapsed = (now_ns - self._last_ns) * 1e-9
+        self._last_ns = now_ns
+        self._ticks += 1
+        self._missed += max(0, round(elapsed / self._period) - 1)
+        sample = self._plant.advance(elapsed)
+        state = HasState(joint=self.joint, position=sample.position, velocity=sample.velocity,
+                         pressure_a=sample.pressure_a, pressure_b=sample.pressure_b,
+                         motor_speed=sample.motor_speed,
+                         motor_speed_command=sample.motor_speed_command,
+                         motor_current=math.nan, load_force=sample.load_force,
+                         valve_mode=sample.valve_mode)
+        state.header.stamp = now.to_msg()
+        self._publisher.publish(state)
+
+    def destroy_node(self) -> None:
+        """Log the timing summary, then destroy the node."""
+        self.get_logger().info(f'{self.joint} plant: {self._ticks} periods, '
+                               f'{self._missed} missed')
+        super().destroy_node()
+
+
+def main(args: list[str] | None = None) -> None:
+    """Run one plant until interrupted."""
+    init(args=args)
+    node = None
+    try:
+        node = PlantNode()
+        spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except STARTUP_ERRORS as exc:
+        get_logger('plant').fatal(f'cannot start: {exc}')
+        raise SystemExit(1) from None
+    finally:
+        if node is not None:
+            node.destroy_node()
+        try_shutdown()
+
+
+if __name__ == '__main__':
+    main(sys.argv)

@@ -1,0 +1,271 @@
+"""The whole exoskeleton as separate processes, without launch files: track, record, stop, replay.
+
+One session (four plants, the PD controller, the watchdog, the gait publisher, the recorder)
+walks for 8 s and squats for 8 s; the tests then read its bag, replay it, overload a joint and
+kill a plant. The tests run in file order and share the session.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import pytest
+
+from exo_has_control.analysis import read_session, tracking
+from exo_has_control.report import segments_of, write_report
+from exo_has_control.session import Session, SessionConfig, recorded_topics
+from exo_has_runtime.bag import read_messages
+from exo_has_runtime.testing.processes import NodeProcess
+from exo_has_runtime.topics import (
+    JOINT_NAMES,
+    SAFETY_EVENT_DEPTH,
+    SAFETY_EVENT_TOPIC,
+    SAFETY_RESET_TOPIC,
+    has_command_topic,
+    load_force_topic,
+)
+
+MOTIONS, DURATIONS = ('walk', 'squat'), (8.0, 8.0)
+RATE = 200.0
+# The knee asks for more cylinder speed in walking than 4000 r/min gives (the motor saturates,
+# see the report), so its bound is looser; the hips must stay near the paper's squat band.
+HIP_SQUAT_BAND = (-2.5, 3.5)  # deg: the paper's -1.5/+2.5 deg, widened 1 deg for VM jitter
+HIP_WALK_PEAK = 5.0  # deg
+KNEE_PEAK = 25.0  # deg
+STOP_BOUND = 0.25  # s: overload to every joint commanded to stop (10 control periods + relief)
+STALE_BOUND = 0.5  # s: plant killed to the stale-state event (stale after 50 ms + scheduling)
+
+
+class Observer:
+    """A node in the test process: watches events and commands, publishes loads and resets."""
+
+    def __init__(self) -> None:
+        from exo_has_runtime.standalone import (
+            Context,
+            DurabilityPolicy,
+            HistoryPolicy,
+            Node,
+            QoSProfile,
+            ReliabilityPolicy,
+            SingleThreadedExecutor,
+            get_message,
+            qos_profile_sensor_data,
+        )
+
+        self.context = Context()
+        self.context.init(['observer'])
+        self.node = Node('test_observer', context=self.context)
+        self.events: list[tuple[float, object]] = []
+        self.commands: dict[str, list[tuple[float, float, bool]]] = defaultdict(list)
+        self.lock = threading.Lock()
+        event_type = get_message('exo_has_msgs/msg/SafetyEvent')
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=SAFETY_EVENT_DEPTH,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.node.create_subscription(event_type, SAFETY_EVENT_TOPIC, self._on_event, qos)
+        command_type = get_message('exo_has_msgs/msg/HasCommand')
+        for joint in JOINT_NAMES:
+            self.node.create_subscription(
+                command_type, has_command_topic(joint),
+                lambda c, j=joint: self._on_command(j, c), qos_profile_sensor_data)
+        float64 = get_message('std_msgs/msg/Float64')
+        self.float64 = float64
+        self.loads = {j: self.node.create_publisher(float64, load_force_topic(j), 10)
+                      for j in JOINT_NAMES}
+        self.empty = get_message('std_msgs/msg/Empty')
+        self.reset = self.node.create_publisher(
+            self.empty, SAFETY_RESET_TOPIC,
+            QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _spin(self) -> None:
+        while self.context.ok():
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def _on_event(self, event: object) -> None:
+        with self.lock:
+            self.events.append((time.monotonic(), event))
+
+    def _on_command(self, joint: str, command: object) -> None:
+        with self.lock:
+            self.commands[joint].append((time.monotonic(), command.motor_speed,
+                                         command.enable))
+
+    def wait_for(self, predicate, timeout: float) -> float:
+        """Wait until predicate() is true; return the monotonic time it became so."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            with self.lock:
+                found = predicate()
+            if found is not None:
+                return found
+            time.sleep(0.005)
+        msg = f'not within {timeout} s'
+        raise TimeoutError(msg)
+
+    def close(self) -> None:
+        """Shut the observer's context down."""
+        self.context.try_shutdown()
+        self._thread.join(timeout=2.0)
+
+
+@pytest.fixture(scope='module')
+def session(tmp_path_factory):
+    config = SessionConfig(MOTIONS, DURATIONS, RATE, loads=True)
+    folder = tmp_path_factory.mktemp('session')
+    running = Session(config, folder)
+    running.start(show=lambda line: None)
+    observer = Observer()
+    try:
+        running.run(show=lambda line: None, extra=1.0)
+        yield running, observer
+    finally:
+        observer.close()
+        running.stop()
+
+
+@pytest.fixture(scope='module')
+def recorded(session):
+    """Read the session's bag back while the session goes on standing."""
+    running, _observer = session
+    # The bag is written by chunks: read a copy closed by recovery if the recorder is still on.
+    from exo_has_runtime.bag import recover_bag
+
+    copy = Path(running.folder) / 'bag_so_far'
+    recover_bag(running.bag, copy)
+    return read_session(copy)
+
+
+def test_the_hips_track_within_the_papers_squat_band_and_the_knees_within_their_bound(recorded):
+    rows = tracking(recorded, segments_of(MOTIONS, DURATIONS))
+    assert len(rows) == 8
+    for row in rows:
+        if row.joint.endswith('hip') and row.segment.endswith('squat'):
+            assert HIP_SQUAT_BAND[0] <= row.minimum and row.maximum <= HIP_SQUAT_BAND[1], row
+        elif row.joint.endswith('hip'):
+            assert row.peak <= HIP_WALK_PEAK, row
+        else:
+            assert row.peak <= KNEE_PEAK, row
+
+
+def test_no_fatal_event_is_raised_in_normal_walking_and_squatting(recorded):
+    fatal = [e for e in recorded.events if e.severity >= 3]
+    assert fatal == []
+
+
+def test_the_bag_holds_every_topic_at_its_expected_rate(recorded, session):
+    _running, _observer = session
+    expected = set(recorded_topics(with_loads=False))
+    assert expected <= set(recorded.counts), expected - set(recorded.counts)
+    for joint in JOINT_NAMES:
+        for table in (recorded.states, recorded.commands):
+            t = table[joint]['t']
+            rate = (len(t) - 1) / (t[-1] - t[0])
+            assert rate == pytest.approx(RATE, rel=0.05), (joint, rate)
+    span = recorded.reference_t[-1] - recorded.reference_t[0]
+    assert (len(recorded.reference_t) - 1) / span == pytest.approx(RATE, rel=0.05)
+    assert recorded.counts['/diagnostics'] >= sum(DURATIONS) * 0.8  # 1 Hz
+
+
+def test_the_report_is_written_with_its_plots(recorded, tmp_path):
+    report = write_report(recorded, tmp_path, MOTIONS, DURATIONS)
+    text = report.read_text()
+    assert '| left_hip | 2 squat |' in text
+    for name in ('joint_angles.png', 'tracking_error.png', 'position.png', 'pressure.png',
+                 'motor_speed.png'):
+        assert (tmp_path / name).stat().st_size > 10_000, name
+
+
+def test_replaying_the_bag_reproduces_its_messages(session, tmp_path):
+    running, _observer = session
+    from exo_has_runtime.bag import recover_bag
+
+    source = tmp_path / 'source'
+    recover_bag(running.bag, source)
+    topic = '/joint_reference'
+    with read_messages(source, [topic]) as messages:
+        original = [m.data for m in messages][:400]  # 2 s of references
+    assert len(original) == 400
+    trimmed = tmp_path / 'trimmed'
+    _write_bag(trimmed, topic, original)
+    copy = tmp_path / 'copy'
+    with NodeProcess('exo_has_runtime.recorder', [
+            '--ros-args', '-r', '__node:=replay_recorder', '-p', f'output:={copy}',
+            '-p', f"topics:=['{topic}_replayed']"]) as recorder:
+        replay = NodeProcess('exo_has_runtime.replay', [
+            str(trimmed), '--rate', '1', '--wait-for-subscribers',
+            '--ros-args', '-r', f'{topic}:={topic}_replayed'])
+        assert replay.wait(timeout_s=30) == 0, replay.output
+        time.sleep(0.3)
+        recorder.stop()
+    with read_messages(copy) as messages:
+        replayed = [m.data for m in messages]
+    assert replayed == original
+
+
+def _write_bag(path: Path, topic: str, payloads: list[bytes]) -> None:
+    from exo_has_runtime.bag import BagWriter
+
+    with BagWriter(path) as bag:
+        bag.add_topic(topic, 'sensor_msgs/msg/JointState', [])
+        for index, data in enumerate(payloads):
+            bag.write(topic, 1_000_000_000 + index * 5_000_000, data)
+
+
+def test_an_overload_opens_the_safety_valve_and_stops_every_joint_within_the_bound(session):
+    _running, observer = session
+    load = observer.float64(data=4000.0)  # N: 26 MPa on the 14 mm bore, over the 18 MPa relief
+    start = time.monotonic()
+    observer.loads['left_knee'].publish(load)
+
+    def valve_event():
+        for t, event in observer.events:
+            if t >= start and event.kind == 1 and event.severity == 3:
+                return t
+        return None
+
+    def all_stopped():
+        times = []
+        for joint in JOINT_NAMES:
+            stops = [t for t, _speed, enable in observer.commands[joint]
+                     if t >= start and not enable]
+            if not stops:
+                return None
+            times.append(stops[0])
+        return max(times)
+
+    opened = observer.wait_for(valve_event, 5.0)
+    stopped = observer.wait_for(all_stopped, 5.0)
+    assert opened - start < STOP_BOUND
+    assert stopped - start < STOP_BOUND, f'stopped after {stopped - start:.3f} s'
+    # Latched: the joints stay stopped until a reset.
+    time.sleep(0.3)
+    with observer.lock:
+        late = [c for j in JOINT_NAMES for c in observer.commands[j][-20:]]
+    assert all(not enable and speed == 0.0 for _t, speed, enable in late)
+    observer.loads['left_knee'].publish(observer.float64(data=1000.0))
+    time.sleep(0.2)
+    observer.reset.publish(observer.empty())
+    observer.wait_for(lambda: next((t for t, e in observer.events
+                                    if t > start and e.kind == 13), None), 5.0)
+
+
+def test_a_killed_plant_is_detected_as_stale(session):
+    running, observer = session
+    start = time.monotonic()
+    running.processes['right_hip_plant'].kill()
+
+    def stale():
+        for t, event in observer.events:
+            if t >= start and event.kind == 5 and event.joint == 'right_hip':
+                return t
+        return None
+
+    detected = observer.wait_for(stale, 5.0)
+    assert detected - start < STALE_BOUND
