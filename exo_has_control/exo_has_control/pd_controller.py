@@ -155,7 +155,7 @@ class PdController(Node):
             self.get_logger().error(f'stopped by a fatal safety event: {event.text}')
             for joint in self._loops:
                 self._publish(joint, 0.0, False)
-        elif event.kind == SafetyEvent.KIND_RESET and self._stopped:
+        elif event.kind == SafetyEvent.KIND_RESET and not event.latched and self._stopped:
             self._stopped = False
             for joint, loop in self._loops.items():
                 self._followers[joint].hold(loop.position)

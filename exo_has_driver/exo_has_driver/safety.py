@@ -13,7 +13,8 @@ The rules, per joint (thresholds in :class:`SafetyLimits`):
 - stroke end: the position within the margin of either end: STROKE_END, ERROR, raised again
   only once the position left the end by the margin plus 0.5 mm;
 - tracking error: the reference angle minus the angle of the measured position over the limit,
-  for at least the persistence time, while the joint's drive is enabled: TRACKING_ERROR, FATAL;
+  for at least the persistence time, while the joint's drive is enabled and no stop is latched
+  (a disabled drive's valve is in free mode, it does not track): TRACKING_ERROR, FATAL;
 - stale state or command: nothing for longer than its timeout after the joint's first message,
   or nothing at all within the start-up grace: STALE_STATE / STALE_COMMAND, FATAL;
 - a NaN or infinite command: INVALID_COMMAND, FATAL;
@@ -21,9 +22,10 @@ The rules, per joint (thresholds in :class:`SafetyLimits`):
   below an absolute vacuum or an unknown valve mode: SENSOR_FAULT, FATAL.
 
 A persisting condition is reported once, when it arises. A FATAL event latches a stop
-(:attr:`Watchdog.stopped`) until :meth:`Watchdog.reset`, which is refused while a fatal
-condition still holds. While stopped, commands are stop commands and are not checked, but every
-other rule keeps reporting new conditions once each.
+(:attr:`Watchdog.stopped`) until :meth:`Watchdog.reset`, which is refused (a WARN event of the
+condition's kind) while a fatal condition still holds: a stale state, an open safety valve, a
+sensor fault. While stopped, commands are stop commands and are not checked, but every other
+rule keeps reporting new conditions once each.
 """
 
 from __future__ import annotations
@@ -489,8 +491,10 @@ class Watchdog:
         Returns
         -------
         list[Event]
-            One RESET event: INFO and not latched when released (or nothing was latched),
-            WARN and latched when refused, with the conditions that still hold.
+            One event. Released (or nothing was latched): RESET, INFO, not latched. Refused:
+            the kind, joint, value and limit of the first condition that still holds, WARN,
+            latched, the text listing every such condition. Not RESET: SafetyEvent defines it
+            as a released stop, on which controllers resume.
 
         """
         nan = math.nan
@@ -499,8 +503,10 @@ class Watchdog:
                           'reset: no stop was latched')]
         holding = self._holding(t)
         if holding:
-            return [Event('', KIND_RESET, SEVERITY_WARN, nan, nan, True,
-                          f'reset refused: {"; ".join(holding)}')]
+            joint, kind, value, limit, _ = holding[0]
+            texts = '; '.join(text for *_, text in holding)
+            return [Event(joint, kind, SEVERITY_WARN, float(value), float(limit), True,
+                          f'reset refused: {texts}')]
         cause = self._cause
         self._stopped = False
         self._cause = None
@@ -593,19 +599,25 @@ class Watchdog:
         age, limit = t - state.state_time, state.limits.state_timeout
         return age, limit, f'no state for {age:.3f} s (limit {limit:.3f} s)'
 
-    def _holding(self, t: float) -> list[str]:
-        """List the fatal conditions that still hold at t, which forbid a reset."""
+    def _holding(self, t: float) -> list[tuple[str, int, float, float, str]]:
+        """List the fatal conditions that still hold at t, which forbid a reset.
+
+        Each as (joint, kind, value, limit, text).
+        """
         holding = []
         for joint, state in self._joints.items():
             age, limit, what = self._state_age(state, t)
             if age > limit:
-                holding.append(f'{joint}: {what}')
+                holding.append((joint, KIND_STALE_STATE, age, limit, f'{joint}: {what}'))
             elif KIND_SAFETY_VALVE_OPEN in state.active:
                 pressure = max(state.pressure_a, state.pressure_b)
-                holding.append(f'{joint}: safety valve still open ({_mpa(pressure)}, '
-                               f'valve mode {state.valve_mode})')
+                holding.append((joint, KIND_SAFETY_VALVE_OPEN, pressure,
+                                state.limits.relief_pressure,
+                                f'{joint}: safety valve still open ({_mpa(pressure)}, '
+                                f'valve mode {state.valve_mode})'))
             elif KIND_SENSOR_FAULT in state.active:
-                holding.append(f'{joint}: sensor fault persists')
+                holding.append((joint, KIND_SENSOR_FAULT, math.nan, math.nan,
+                                f'{joint}: sensor fault persists'))
         return holding
 
     def _check_pressure(self, joint: str, state: _Joint) -> list[Event]:

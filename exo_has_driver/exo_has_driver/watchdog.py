@@ -123,6 +123,7 @@ class Watchdog(Node):
         self._core: safety.Watchdog | None = None
         self._shortest_timeout = min(min(limit.state_timeout, limit.command_timeout)
                                      for limit in self._limits.values())
+        self._period = 1.0 / rate
         self._last_check: float | None = None
         self._deferred = False
         self._last_stop_ns = -1
@@ -147,7 +148,7 @@ class Watchdog(Node):
         self.create_subscription(JointState, JOINT_REFERENCE_TOPIC, self._on_reference,
                                  qos_profile_sensor_data)
         self.create_subscription(Empty, SAFETY_RESET_TOPIC, self._on_reset, 10)
-        self.create_timer(1.0 / rate, self._on_tick)
+        self.create_timer(self._period, self._on_tick)
         self.create_timer(1.0, self._on_diagnostics)
         first = next(iter(self._limits.values()))
         self.get_logger().info(
@@ -215,7 +216,8 @@ class Watchdog(Node):
         if reading is None:
             return
         now, t, core = reading
-        held_up = self._last_check is not None and t - self._last_check > self._shortest_timeout
+        held_up = (self._last_check is not None
+                   and t - self._last_check > self._period + self._shortest_timeout)
         self._last_check = t
         if held_up and not self._deferred:
             # The watchdog itself was held up (scheduling, GC): judge staleness at the next

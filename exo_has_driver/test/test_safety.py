@@ -289,8 +289,9 @@ def test_a_reset_is_refused_while_a_fatal_condition_holds_and_releases_the_latch
     watchdog, t = running()
     only(watchdog.on_state('left_knee', t, MID, RELIEF, 0.0, VALVE_RELIEF))
     refused = only(watchdog.reset(t + 0.001))
-    assert (refused.kind, refused.severity, refused.latched) == (KIND_RESET, SEVERITY_WARN,
-                                                                True)
+    assert (refused.joint, refused.kind, refused.severity, refused.latched) == (
+        'left_knee', KIND_SAFETY_VALVE_OPEN, SEVERITY_WARN, True)  # not RESET: nothing released
+    assert (refused.value, refused.limit) == (RELIEF, RELIEF)
     assert 'reset refused: left_knee: safety valve still open' in refused.text
     assert watchdog.stopped
     assert feed(watchdog, t + 0.002) == []  # the pressure is down again
@@ -309,8 +310,10 @@ def test_a_reset_is_refused_while_a_joint_is_still_stale():
         events += feed(watchdog, t + step * PERIOD, skip=('right_knee',))
     assert {e.kind for e in events} == {KIND_STALE_STATE, KIND_STALE_COMMAND}
     refused = only(watchdog.reset(t + 0.1))
-    assert refused.severity == SEVERITY_WARN
-    assert 'right_knee: no state for 0.1' in refused.text
+    assert (refused.joint, refused.kind, refused.severity) == ('right_knee', KIND_STALE_STATE,
+                                                               SEVERITY_WARN)
+    assert refused.value == pytest.approx(0.105) and refused.limit == 0.05  # since 0.095 s
+    assert 'reset refused: right_knee: no state for 0.1' in refused.text
     assert feed(watchdog, t + 0.101) == []
     assert only(watchdog.reset(t + 0.102)).severity == SEVERITY_INFO
 

@@ -32,7 +32,7 @@ from exo_has_runtime.topics import (
     has_state_topic,
     load_force_topic,
 )
-from exo_has_sim.loads import default_load_force
+from exo_has_sim.loads import PAPER_LOAD_MASS, default_load_force
 from exo_has_sim.parameters import load_parameters
 from exo_has_sim.plant import Plant, joint_type_of
 
@@ -63,11 +63,15 @@ class PlantNode(Node):
             description='joint angle at start [rad], flexion positive (0: standing)',
             read_only=True)).value
         params = load_parameters(params_source)
+        mass = self.declare_parameter('load_mass', PAPER_LOAD_MASS, ParameterDescriptor(
+            description='carried mass [kg] the default load_force is derived for (the paper: '
+                        '50 kg in design, 25 kg in its tracking tests)', read_only=True,
+            floating_point_range=[FloatingPointRange(from_value=1.0, to_value=500.0)])).value
         load = self.declare_parameter('load_force', default_load_force(
-            params, standing_angle=initial_angle), ParameterDescriptor(
+            params, mass=mass, standing_angle=initial_angle), ParameterDescriptor(
             description='external rod force [N], positive pushing the cylinder in; the default '
-                        'is the peak normative extensor moment for 50 kg at the standing lever '
-                        'arm (exo_has_sim.loads); a message on <joint>/load_force replaces it',
+                        'is the peak normative extensor moment for load_mass at the standing '
+                        'lever arm (exo_has_sim.loads); <joint>/load_force replaces it',
             floating_point_range=[FloatingPointRange(from_value=-1.0e5, to_value=1.0e5)])).value
         self._plant = Plant(self.joint, params, initial_angle=initial_angle, load_force=load)
         self._period = 1.0 / rate
