@@ -18,10 +18,10 @@ from exo_has_control.analysis import read_session, tracking
 from exo_has_control.report import segments_of, write_report
 from exo_has_control.session import Session, SessionConfig, recorded_topics
 from exo_has_runtime.bag import read_messages
+from exo_has_runtime.profiles import SAFETY_EVENT_QOS
 from exo_has_runtime.testing.processes import NodeProcess
 from exo_has_runtime.topics import (
     JOINT_NAMES,
-    SAFETY_EVENT_DEPTH,
     SAFETY_EVENT_TOPIC,
     SAFETY_RESET_TOPIC,
     has_command_topic,
@@ -45,8 +45,6 @@ class Observer:
     def __init__(self) -> None:
         from exo_has_runtime.standalone import (
             Context,
-            DurabilityPolicy,
-            HistoryPolicy,
             Node,
             QoSProfile,
             ReliabilityPolicy,
@@ -62,10 +60,8 @@ class Observer:
         self.commands: dict[str, list[tuple[float, float, bool]]] = defaultdict(list)
         self.lock = threading.Lock()
         event_type = get_message('exo_has_msgs/msg/SafetyEvent')
-        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=SAFETY_EVENT_DEPTH,
-                         reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self.node.create_subscription(event_type, SAFETY_EVENT_TOPIC, self._on_event, qos)
+        self.node.create_subscription(event_type, SAFETY_EVENT_TOPIC, self._on_event,
+                                      SAFETY_EVENT_QOS)
         command_type = get_message('exo_has_msgs/msg/HasCommand')
         for joint in JOINT_NAMES:
             self.node.create_subscription(

@@ -21,14 +21,10 @@ from exo_has_control.pd import PAPER_KD, PAPER_KP, PdGains, PositionLoop
 from exo_has_control.tracking import ReferenceFollower
 from exo_has_runtime import (
     STARTUP_ERRORS,
-    DurabilityPolicy,
     ExternalShutdownException,
     FloatingPointRange,
-    HistoryPolicy,
     Node,
     ParameterDescriptor,
-    QoSProfile,
-    ReliabilityPolicy,
     get_logger,
     get_message,
     init,
@@ -36,10 +32,10 @@ from exo_has_runtime import (
     spin,
     try_shutdown,
 )
+from exo_has_runtime.profiles import SAFETY_EVENT_QOS
 from exo_has_runtime.topics import (
     JOINT_NAMES,
     JOINT_REFERENCE_TOPIC,
-    SAFETY_EVENT_DEPTH,
     SAFETY_EVENT_TOPIC,
     check_joint,
     has_command_topic,
@@ -85,10 +81,8 @@ class PdController(Node):
         self._stopped = False
         self.create_subscription(JointState, JOINT_REFERENCE_TOPIC, self._on_reference,
                                  qos_profile_sensor_data)
-        events_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=SAFETY_EVENT_DEPTH,
-                                reliability=ReliabilityPolicy.RELIABLE,
-                                durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self.create_subscription(SafetyEvent, SAFETY_EVENT_TOPIC, self._on_event, events_qos)
+        self.create_subscription(SafetyEvent, SAFETY_EVENT_TOPIC, self._on_event,
+                                 SAFETY_EVENT_QOS)
         gains = '; '.join(f'{joint}: kp {loop.gains.kp:g}, kd {loop.gains.kd:g}, '
                           f'kff {loop.gains.kff:.5g}, limit {loop.gains.speed_limit:.5g}'
                           for joint, loop in self._loops.items())

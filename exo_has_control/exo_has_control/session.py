@@ -11,8 +11,7 @@ integration tests run sessions.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -26,6 +25,7 @@ from exo_has_runtime.topics import (
     has_state_topic,
     load_force_topic,
 )
+from exo_has_sim.plant import joint_type_of
 
 #: Time allowed for a node to report ready [s]; a plant's first start compiles the model.
 READY_TIMEOUT = 120.0
@@ -110,7 +110,7 @@ def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
         specs.append(NodeSpec(f'{joint}_plant', 'exo_has_sim.plant_node', (
             '--ros-args', '-r', f'__node:={joint}_plant', '-p', f'joint:={joint}',
             '-p', f'rate:={config.rate}',
-            '-p', f'load_mass:={config.load_mass[joint.split("_")[1]]}',
+            '-p', f'load_mass:={config.load_mass[joint_type_of(joint)]}',
             *config.plant_arguments.get(joint, ())),
             ready=r'plant ready'))
     specs.append(NodeSpec('pd_controller', 'exo_has_control.pd_controller', (),
@@ -224,16 +224,4 @@ class Session:
     def output(self, name: str) -> str:
         """Everything a node wrote so far."""
         return self.processes[name].output
-
-
-@contextmanager
-def running(config: SessionConfig, folder: Path, env: dict[str, str] | None = None,
-            show: Callable[[str], None] = print) -> Iterator[Session]:
-    """Start a session, yield it, stop it however the block ends."""
-    session = Session(config, folder, env)
-    session.start(show)
-    try:
-        yield session
-    finally:
-        session.stop()
 

@@ -21,15 +21,11 @@ from exo_has_driver import safety
 from exo_has_driver.errors import SafetyConfigError
 from exo_has_runtime import (
     STARTUP_ERRORS,
-    DurabilityPolicy,
     ExternalShutdownException,
     FloatingPointRange,
-    HistoryPolicy,
     IntegerRange,
     Node,
     ParameterDescriptor,
-    QoSProfile,
-    ReliabilityPolicy,
     Time,
     get_logger,
     get_message,
@@ -38,11 +34,11 @@ from exo_has_runtime import (
     spin,
     try_shutdown,
 )
+from exo_has_runtime.profiles import SAFETY_EVENT_QOS
 from exo_has_runtime.topics import (
     DIAGNOSTICS_TOPIC,
     JOINT_NAMES,
     JOINT_REFERENCE_TOPIC,
-    SAFETY_EVENT_DEPTH,
     SAFETY_EVENT_TOPIC,
     SAFETY_RESET_TOPIC,
     check_joint,
@@ -129,11 +125,8 @@ class Watchdog(Node):
         self._last_stop_ns = -1
         self._released_ns = -1
 
-        events_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=SAFETY_EVENT_DEPTH,
-                                reliability=ReliabilityPolicy.RELIABLE,
-                                durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self._event_publisher = self.create_publisher(SafetyEvent, SAFETY_EVENT_TOPIC,
-                                                      events_qos)
+                                                      SAFETY_EVENT_QOS)
         self._diagnostics_publisher = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC,
                                                             10)
         self._stop_publishers = {

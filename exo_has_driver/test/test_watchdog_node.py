@@ -3,12 +3,9 @@ import time
 
 import pytest
 
+from exo_has_runtime.profiles import SAFETY_EVENT_QOS
 from exo_has_runtime.standalone import (
-    DurabilityPolicy,
-    HistoryPolicy,
     Node,
-    QoSProfile,
-    ReliabilityPolicy,
     SingleThreadedExecutor,
     get_message,
     qos_profile_sensor_data,
@@ -17,7 +14,6 @@ from exo_has_runtime.testing.processes import NodeProcess
 from exo_has_runtime.topics import (
     DIAGNOSTICS_TOPIC,
     JOINT_NAMES,
-    SAFETY_EVENT_DEPTH,
     SAFETY_EVENT_TOPIC,
     SAFETY_RESET_TOPIC,
     has_command_topic,
@@ -37,9 +33,7 @@ ARGS = ['--ros-args', '-p', 'stale_periods:=20', '-p', 'startup_grace:=3.0']
 # Time from a fault reaching the watchdog to its stop commands reaching every joint; measured
 # here at about 1 ms (loopback, standalone backend), bounded generously for loaded machines.
 STOP_BOUND = 0.1  # s
-EVENTS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=SAFETY_EVENT_DEPTH,
-                        reliability=ReliabilityPolicy.RELIABLE,
-                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
+EVENTS_QOS = SAFETY_EVENT_QOS
 
 
 class Rig:
