@@ -11,8 +11,6 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-import numpy as np
-
 from exo_has_sim.kinematics import Linkage
 from exo_has_sim.parameters import HasParameters
 
@@ -50,9 +48,9 @@ class ReferenceFollower:
         rate = float(rates[index]) if index < len(rates) else 0.0
         if not (math.isfinite(angle) and math.isfinite(rate)):
             return f'non-finite reference for {self.joint!r}: {angle!r} rad, {rate!r} rad/s'
-        x = float(self.linkage.position(angle, check=False))
-        v = float(self.linkage.velocity(angle, rate))
-        clamped = float(np.clip(x, 0.0, self.stroke))
+        x = self.linkage.position_at(angle)
+        v = self.linkage.velocity_at(angle, rate)
+        clamped = min(max(x, 0.0), self.stroke)
         self._target = (t, clamped, v if clamped == x else 0.0)
         if clamped != x:
             low, high = (math.degrees(a) for a in self.linkage.angle_range())

@@ -382,7 +382,7 @@ class Watchdog:
         angle = None
         if fault is None:
             try:
-                angle = float(state.limits.linkage.angle(position))
+                angle = state.limits.linkage.angle_at(position)
             except KinematicsError:
                 fault = (position, math.nan, f'position {position:.4f} m outside what the '
                                              'linkage can reach')

@@ -31,10 +31,10 @@ from exo_has_runtime import (
     get_message,
     init,
     qos_profile_sensor_data,
-    spin,
+    spin_paced,
     try_shutdown,
 )
-from exo_has_runtime.profiles import SAFETY_EVENT_QOS
+from exo_has_runtime.profiles import PACED_SENSOR_QOS, SAFETY_EVENT_QOS
 from exo_has_runtime.topics import (
     DIAGNOSTICS_TOPIC,
     JOINT_NAMES,
@@ -135,11 +135,11 @@ class Watchdog(Node):
             for joint in self._joints}
         for joint in self._joints:
             self.create_subscription(HasState, has_state_topic(joint),
-                                     partial(self._on_state, joint), qos_profile_sensor_data)
+                                     partial(self._on_state, joint), PACED_SENSOR_QOS)
             self.create_subscription(HasCommand, has_command_topic(joint),
-                                     partial(self._on_command, joint), qos_profile_sensor_data)
+                                     partial(self._on_command, joint), PACED_SENSOR_QOS)
         self.create_subscription(JointState, JOINT_REFERENCE_TOPIC, self._on_reference,
-                                 qos_profile_sensor_data)
+                                 PACED_SENSOR_QOS)
         self.create_subscription(Empty, SAFETY_RESET_TOPIC, self._on_reset, 10)
         self.create_timer(self._period, self._on_tick)
         self.create_timer(1.0, self._on_diagnostics)
@@ -321,7 +321,8 @@ def main(args: list[str] | None = None) -> None:
     node = None
     try:
         node = Watchdog()
-        spin(node)
+        # Every message is checked, in a batch at each tick: no wake-up per message.
+        spin_paced(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except STARTUP_ERRORS as exc:

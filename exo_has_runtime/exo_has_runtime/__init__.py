@@ -67,6 +67,10 @@ if BACKEND == 'rclpy':  # pragma: no cover - exercised on a ROS 2 machine only
     from rclpy.time import Time
     from rclpy.utilities import remove_ros_args
     from rosidl_runtime_py.utilities import get_message
+
+    def spin_paced(node: Node) -> None:
+        """rclpy.spin: the standalone backend's wake-up saving does not apply to rclpy."""
+        spin(node)
 else:
     from exo_has_runtime.errors import (
         ExternalShutdownException,
@@ -97,6 +101,7 @@ else:
         shutdown,
         spin,
         spin_once,
+        spin_paced,
         try_shutdown,
     )
 
@@ -118,5 +123,5 @@ __all__ = [
     'ParameterNotDeclaredException', 'QoSProfile', 'ReliabilityPolicy', 'SetParametersResult',
     'SingleThreadedExecutor', 'Time', 'get_logger', 'get_message', 'init', 'ok',
     'qos_profile_sensor_data', 'qos_profile_system_default', 'remove_ros_args', 'shutdown',
-    'spin', 'spin_once', 'try_shutdown',
+    'spin', 'spin_once', 'spin_paced', 'try_shutdown',
 ]

@@ -13,3 +13,10 @@ from exo_has_runtime.topics import SAFETY_EVENT_DEPTH
 SAFETY_EVENT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=SAFETY_EVENT_DEPTH,
                               reliability=ReliabilityPolicy.RELIABLE,
                               durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+#: Sensor-data topics (best effort, volatile) read by a node that takes its messages at its ticks
+#: (``spin_paced``): deep enough for a second of a 200 Hz topic, so that a stalled process still
+#: sees every sample once it runs again. Matches publishers of ``qos_profile_sensor_data``.
+PACED_SENSOR_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=200,
+                              reliability=ReliabilityPolicy.BEST_EFFORT,
+                              durability=DurabilityPolicy.VOLATILE)

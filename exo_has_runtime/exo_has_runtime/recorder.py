@@ -1,12 +1,14 @@
-"""Record topics to a bag (rosbag2, MCAP): the CDR bytes as received, stamped on arrival.
+"""Record topics to a bag (rosbag2, MCAP): the CDR bytes as received, stamped at publication.
 
-Each message is written as received (raw, never deserialised) with the node clock's time of
-arrival as its bag time, so ``use_sim_time`` records simulated time (0 before the first
-``/clock``). Topics and types come from graph discovery, checked every ``discovery_period``; a
-topic is subscribed once it has a publisher, with the QoS :mod:`exo_has_runtime.recording`
-derives from the publishers' offers. The bag is flushed as a complete chunk every
-``flush_period``, so a killed recorder loses at most that much (``exo-has bag recover``), and is
-closed (``metadata.yaml`` written) on SIGINT and SIGTERM.
+Each message is written as received (raw, never deserialised). Its bag time is its publication time
+(the DDS source timestamp, which rclpy and the standalone backend both pass as MessageInfo), so
+that the bag keeps the original timing although the recorder takes its messages in batches, every
+``take_period``; under ``use_sim_time`` it is the node clock's simulated time at the take instead
+(0 before the first ``/clock``). Topics and types come from graph discovery, checked every
+``discovery_period``; a topic is subscribed once it has a publisher, with the QoS
+:mod:`exo_has_runtime.recording` derives from the publishers' offers. The bag is flushed as a
+complete chunk every ``flush_period``, so a killed recorder loses at most that much (``exo-has bag
+recover``), and is closed (``metadata.yaml`` written) on SIGINT and SIGTERM.
 """
 
 from __future__ import annotations
@@ -30,12 +32,13 @@ from exo_has_runtime import (
     ReliabilityPolicy,
     get_message,
     init,
-    spin,
+    spin_paced,
     try_shutdown,
 )
 from exo_has_runtime.bag import BagWriter, offered_qos
 from exo_has_runtime.errors import BagError
 from exo_has_runtime.recording import (
+    RECORD_DEPTH,
     QosChoice,
     bag_path,
     subscription_qos,
@@ -61,6 +64,10 @@ class Recorder(Node):
         self.declare_parameter('flush_period', 1.0, ParameterDescriptor(
             description='period of the writes to disk [s]: what a crash may lose',
             floating_point_range=[FloatingPointRange(from_value=0.05, to_value=60.0)]))
+        self.declare_parameter('take_period', 0.05, ParameterDescriptor(
+            description='period at which the waiting messages are taken and written [s]; a '
+                        f'topic holds {RECORD_DEPTH} messages in between',
+            floating_point_range=[FloatingPointRange(from_value=0.001, to_value=1.0)]))
         self.declare_parameter('compress', False, ParameterDescriptor(
             description='compress the chunks with zstd'))
         topics = self.get_parameter('topics').value or []
@@ -79,6 +86,8 @@ class Recorder(Node):
         self.create_timer(self.get_parameter('discovery_period').value, self._discover,
                           clock=steady)
         self.create_timer(self.get_parameter('flush_period').value, self._flush, clock=steady)
+        # Paces the takes (spin_paced): the messages are handed over just before it runs.
+        self.create_timer(self.get_parameter('take_period').value, lambda: None, clock=steady)
         wanted = ', '.join(sorted(self._wanted)) if self._wanted else 'every topic'
         self.get_logger().info(f'opened bag {self._path}; waiting for publishers on {wanted}')
         self._discover()
@@ -123,12 +132,14 @@ class Recorder(Node):
     def _offers(self, topic: str) -> list[Any]:
         return [info.qos_profile for info in self.get_publishers_info_by_topic(topic)]
 
-    def _writer_for(self, topic: str) -> Callable[[bytes], None]:
+    def _writer_for(self, topic: str) -> Callable[[bytes, dict[str, Any]], None]:
         bag, clock = self._bag, self.get_clock()
         assert bag is not None
 
-        def on_message(data: bytes) -> None:
-            bag.write(topic, clock.now().nanoseconds, data)
+        def on_message(data: bytes, info: dict[str, Any]) -> None:
+            stamp = clock.now().nanoseconds if clock.ros_time_is_active \
+                else info['source_timestamp']
+            bag.write(topic, stamp, data)
         return on_message
 
     def _give_up(self, topic: str, reason: str) -> None:
@@ -174,7 +185,8 @@ def main(args: list[str] | None = None) -> None:
     node = None
     try:
         node = Recorder()
-        spin(node)
+        # Messages are taken in batches at the take_period timer: no wake-up per message.
+        spin_paced(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

@@ -8,7 +8,8 @@ check the mass balance:
   atmospheric pressure (paper, section 3.3: p_i = 0), so p_B = 0;
 - ``n`` motor (= pump) speed [rad/s], following the command through a first-order speed loop;
 - ``s`` compact-valve spool position [-]: 1 assist (pump to rodless chamber), 0 free (both
-  chambers to the tank), moved by the pump's pressure once the motor turns (section 2.3.3);
+  chambers to the tank), pushed by the pressure at the valve's inlet: the pump's once the motor
+  turns, the chamber's while in assist (section 2.3.3, :func:`spool_drive`);
 - ``void`` volume of the vapour pocket in the rodless chamber [m^3] (see below).
 
 Flow balance of the rodless chamber, the paper's Eq. 10 made dynamic:
@@ -44,8 +45,8 @@ N_STATE = 11
 # Packed parameter layout.
 (I_DP, I_NMAX, I_TAU_M, I_LN, I_LC, I_E, I_AA, I_AB, I_AE, I_STROKE, I_V0, I_M, I_B, I_PREL,
  I_GREL, I_GFREE, I_NENG, I_NREL, I_TAU_S, I_PCAV, I_KSTOP, I_CSTOP, I_FC, I_FS, I_VS, I_VEPS,
- I_NDZ, I_LN2, I_PCRACK, I_GCRACK, I_AIR) = range(31)
-N_PACKED = 31
+ I_NDZ, I_LN2, I_PCRACK, I_GCRACK, I_AIR, I_PHOLD, I_PDROP) = range(33)
+N_PACKED = 33
 
 ATMOSPHERIC_PRESSURE = 101_325.0  # Pa
 CAVITATION_TIME_CONSTANT = 1.0e-4  # s, relaxation of the pressure onto the cavitation floor
@@ -93,6 +94,8 @@ def pack(params: HasParameters) -> np.ndarray:
     packed[I_PCRACK] = e.relief_crack_pressure
     packed[I_GCRACK] = e.relief_crack_conductance
     packed[I_AIR] = e.entrained_air
+    packed[I_PHOLD] = params.valve_hold_pressure
+    packed[I_PDROP] = params.valve_drop_pressure
     return packed
 
 
@@ -140,11 +143,44 @@ def relief_flow(p: float, prm: np.ndarray) -> float:
 
 
 @njit(cache=True)
-def spool_target(n: float, prm: np.ndarray) -> float:
-    """Spool position the pump's pressure drives the compact valve to, at motor speed n."""
-    span = prm[I_NENG] - prm[I_NREL]
-    z = min(max((abs(n) - prm[I_NREL]) / span, 0.0), 1.0)
-    return float(z * z * (3.0 - 2.0 * z))
+def _smoothstep(z: float) -> tuple[float, float]:
+    """Smoothstep of z clipped to [0, 1], and its derivative."""
+    if z <= 0.0:
+        return 0.0, 0.0
+    if z >= 1.0:
+        return 1.0, 0.0
+    return z * z * (3.0 - 2.0 * z), 6.0 * z * (1.0 - z)
+
+
+@njit(cache=True)
+def spool_drive(n: float, p: float, s: float, prm: np.ndarray) -> tuple[float, int, float]:
+    """Spool position the system pressure drives the compact valve to (paper 2.3.3).
+
+    The spool is pushed by the pressure at the valve's inlet: built by the turning pump while
+    the valve is free (a function of motor speed n), and the chamber pressure p once the valve
+    is in assist (the inlet is then open to the chamber), weighted by the spool opening s. So a
+    loaded valve stays in assist while the motor passes through zero at a reversal; it falls to
+    free mode once the motor stops and the pressure has gone, as the paper describes.
+
+    Returns
+    -------
+    tuple[float, int, float]
+        The target position; 0 if motor speed drives it, 1 if pressure does; and the
+        derivative of the target by that term's argument (n, or the inlet pressure s p).
+
+    """
+    by_speed, d_speed = _smoothstep((abs(n) - prm[I_NREL]) / (prm[I_NENG] - prm[I_NREL]))
+    span = prm[I_PHOLD] - prm[I_PDROP]
+    by_pressure, d_pressure = _smoothstep((s * p - prm[I_PDROP]) / span)
+    if by_pressure > by_speed:
+        return by_pressure, 1, d_pressure / span
+    return by_speed, 0, d_speed / (prm[I_NENG] - prm[I_NREL])
+
+
+@njit(cache=True)
+def spool_target(n: float, p: float, s: float, prm: np.ndarray) -> float:
+    """Spool position the compact valve moves to (see :func:`spool_drive`)."""
+    return float(spool_drive(n, p, s, prm)[0])
 
 
 @njit(cache=True)
@@ -194,7 +230,7 @@ def rhs(y: np.ndarray, n_cmd: float, f_load: float, prm: np.ndarray,
     dy[V] = force / prm[I_M]
     dy[PA] = dp
     dy[N] = (command - n) / prm[I_TAU_M]
-    dy[S] = (spool_target(n, prm) - s) / prm[I_TAU_S]
+    dy[S] = (spool_target(n, p, s, prm) - s) / prm[I_TAU_S]
     dy[VOID] = dvoid
     dy[VOL_PUMP] = q_pump
     dy[VOL_LEAK] = q_leak
@@ -325,11 +361,13 @@ def jacobian(y: np.ndarray, n_cmd: float, f_load: float, prm: np.ndarray,
     jac[V, V] = d_force_v / prm[I_M]
     jac[V, PA] = prm[I_AA] / prm[I_M]
     jac[N, N] = -1.0 / prm[I_TAU_M]
-    span = prm[I_NENG] - prm[I_NREL]
-    z = (abs(n) - prm[I_NREL]) / span
-    if 0.0 < z < 1.0:
-        jac[S, N] = 6.0 * z * (1.0 - z) / span * (1.0 if n >= 0.0 else -1.0) / prm[I_TAU_S]
+    _, driver, slope = spool_drive(n, p, s, prm)
     jac[S, S] = -1.0 / prm[I_TAU_S]
+    if driver == 0:
+        jac[S, N] = slope * (1.0 if n >= 0.0 else -1.0) / prm[I_TAU_S]
+    else:
+        jac[S, PA] = slope * s / prm[I_TAU_S]
+        jac[S, S] += slope * p / prm[I_TAU_S]
 
 
 @njit(cache=True)

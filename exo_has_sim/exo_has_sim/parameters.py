@@ -119,6 +119,8 @@ class HasParameters:
     free_conductance: float
     valve_engage_speed: float
     valve_release_speed: float
+    valve_hold_pressure: float
+    valve_drop_pressure: float
     valve_time_constant: float
     cavitation_pressure: float
     end_stop_stiffness: float
@@ -191,6 +193,8 @@ _RANGES: dict[str, tuple[float, float, str]] = {
     'free_conductance': (1e-13, 1e-7, 'm^3/(s Pa)'),
     'valve_engage_speed': (0.0, 200.0, 'rad/s'),
     'valve_release_speed': (0.0, 200.0, 'rad/s'),
+    'valve_hold_pressure': (0.0, 10.0e6, 'Pa'),
+    'valve_drop_pressure': (0.0, 10.0e6, 'Pa'),
     'valve_time_constant': (1e-4, 1.0, 's'),
     'cavitation_pressure': (-1.0e5, 0.0, 'Pa (gauge)'),
     'end_stop_stiffness': (1e4, 1e10, 'N/m'),
@@ -259,6 +263,9 @@ def check_parameters(params: HasParameters, where: str = 'parameters') -> None:
         raise ParameterError(msg)
     if params.valve_release_speed >= params.valve_engage_speed:
         msg = f'{where}: valve_release_speed must be below valve_engage_speed'
+        raise ParameterError(msg)
+    if params.valve_drop_pressure >= params.valve_hold_pressure:
+        msg = f'{where}: valve_drop_pressure must be below valve_hold_pressure'
         raise ParameterError(msg)
     crack = params.effects.relief_crack_pressure
     if crack and not 0.0 < crack < params.relief_pressure:

@@ -22,7 +22,7 @@ from exo_has_runtime import (
     get_message,
     init,
     qos_profile_sensor_data,
-    spin,
+    spin_paced,
     try_shutdown,
 )
 from exo_has_runtime.topics import (
@@ -136,7 +136,8 @@ def main(args: list[str] | None = None) -> None:
     node = None
     try:
         node = PlantNode()
-        spin(node)
+        # Commands matter only at the ticks: no wake-up per command.
+        spin_paced(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except STARTUP_ERRORS as exc:

@@ -64,3 +64,20 @@ def test_angles_beyond_the_stroke_are_refused(linkage):
         linkage.position(high + 0.2)
     with pytest.raises(KinematicsError):
         linkage.angle(10.0)
+
+
+def test_the_scalar_forms_agree_with_the_array_forms(linkage):
+    low, high = linkage.angle_range()
+    for angle in np.linspace(low, high, 25):
+        x = float(linkage.position(angle))
+        assert_allclose(linkage.position_at(angle), x, rtol=0, atol=1e-12)
+        assert_allclose(linkage.angle_at(x), float(linkage.angle(x)), rtol=0, atol=1e-12)
+        assert_allclose(linkage.velocity_at(angle, 0.7), float(linkage.velocity(angle, 0.7)),
+                        rtol=1e-12)
+
+
+def test_the_scalar_angle_refuses_an_unreachable_or_nan_extension(linkage):
+    with pytest.raises(KinematicsError, match='outside what the linkage can reach'):
+        linkage.angle_at(10.0)
+    with pytest.raises(KinematicsError):
+        linkage.angle_at(math.nan)

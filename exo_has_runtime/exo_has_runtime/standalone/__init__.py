@@ -11,6 +11,7 @@ from exo_has_runtime.standalone.executors import (
     get_global_executor,
     spin,
     spin_once,
+    spin_paced,
 )
 from exo_has_runtime.standalone.logging import LoggingSeverity, get_logger
 from exo_has_runtime.standalone.messages import get_message
@@ -64,5 +65,5 @@ __all__ = [
     'Subscription', 'Time', 'Timer', 'get_default_context', 'get_global_executor', 'get_logger',
     'get_message', 'init', 'ok', 'qos_profile_parameter_events', 'qos_profile_parameters',
     'qos_profile_sensor_data', 'qos_profile_services_default', 'qos_profile_system_default',
-    'remove_ros_args', 'shutdown', 'spin', 'spin_once', 'try_shutdown',
+    'remove_ros_args', 'shutdown', 'spin', 'spin_once', 'spin_paced', 'try_shutdown',
 ]

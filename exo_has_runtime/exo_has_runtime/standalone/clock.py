@@ -11,6 +11,16 @@ from enum import IntEnum
 from typing import Any
 
 _NS_PER_S = 1_000_000_000
+_message_classes: dict[str, Any] = {}
+
+
+def _message_class(type_name: str) -> Any:
+    """Return the class of a builtin message type, looked up once (``to_msg`` runs often)."""
+    cls = _message_classes.get(type_name)
+    if cls is None:
+        from exo_has_runtime.standalone.messages import get_message
+        cls = _message_classes[type_name] = get_message(type_name)
+    return cls
 
 
 class ClockType(IntEnum):
@@ -37,9 +47,8 @@ class Duration:
 
     def to_msg(self) -> Any:
         """Return a builtin_interfaces/msg/Duration."""
-        from exo_has_runtime.standalone.messages import get_message
         sec, nanosec = divmod(self._nanoseconds, _NS_PER_S)
-        return get_message('builtin_interfaces/msg/Duration')(sec=sec, nanosec=nanosec)
+        return _message_class('builtin_interfaces/msg/Duration')(sec=sec, nanosec=nanosec)
 
     @classmethod
     def from_msg(cls, msg: Any) -> Duration:
@@ -91,11 +100,18 @@ class Time:
         sec, nanosec = divmod(self._nanoseconds, _NS_PER_S)
         return sec, nanosec
 
+    @classmethod
+    def _of(cls, nanoseconds: int, clock_type: ClockType) -> Time:
+        """Build a Time without the checks of ``__init__``: for clock reads, which are valid."""
+        instance = cls.__new__(cls)
+        instance._nanoseconds = nanoseconds
+        instance._clock_type = clock_type
+        return instance
+
     def to_msg(self) -> Any:
         """Return a builtin_interfaces/msg/Time."""
-        from exo_has_runtime.standalone.messages import get_message
-        sec, nanosec = self.seconds_nanoseconds()
-        return get_message('builtin_interfaces/msg/Time')(sec=sec, nanosec=nanosec)
+        sec, nanosec = divmod(self._nanoseconds, _NS_PER_S)
+        return _message_class('builtin_interfaces/msg/Time')(sec=sec, nanosec=nanosec)
 
     @classmethod
     def from_msg(cls, msg: Any, clock_type: ClockType = ClockType.ROS_TIME) -> Time:
@@ -154,11 +170,18 @@ class Clock:
 
     def now(self) -> Time:
         """Return the current time of this clock."""
+        return Time._of(self.now_ns(), self._clock_type)
+
+    def now_ns(self) -> int:
+        """Return the current time of this clock [ns]: the standalone timers' hot path.
+
+        Not rclpy API: node code calls :meth:`now`.
+        """
         if self._override_ns is not None:
-            return Time(nanoseconds=self._override_ns, clock_type=self._clock_type)
+            return self._override_ns
         if self._clock_type == ClockType.STEADY_TIME:
-            return Time(nanoseconds=time.monotonic_ns(), clock_type=self._clock_type)
-        return Time(nanoseconds=time.time_ns(), clock_type=self._clock_type)
+            return time.monotonic_ns()
+        return time.time_ns()
 
 
 class ROSClock(Clock):

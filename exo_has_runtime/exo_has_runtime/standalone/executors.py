@@ -3,7 +3,9 @@
 One Cyclone DDS wait set holds a read condition per subscription, the context's guard condition
 (shutdown) and the discovery readers; the wait ends at the first of new data, shutdown, the next
 timer or the caller's timeout. Each :meth:`SingleThreadedExecutor.spin_once` then runs every
-callback that is ready (rclpy runs one), subscriptions first, then due timers.
+callback that is ready (rclpy runs one), subscriptions first, then due timers. An executor made
+with ``wake_on_messages=False`` leaves the read conditions out and takes the messages when a
+timer is due: see :class:`SingleThreadedExecutor`.
 """
 
 from __future__ import annotations
@@ -22,13 +24,29 @@ _MAX_WAIT_NS = 100_000_000
 
 
 class SingleThreadedExecutor:
-    """Runs the callbacks of its nodes in the calling thread."""
+    """Runs the callbacks of its nodes in the calling thread.
 
-    def __init__(self, *, context: Context | None = None) -> None:
+    Parameters
+    ----------
+    context : Context, optional
+        The context (default: the process-wide one).
+    wake_on_messages : bool
+        True (rclpy's behaviour): wake for every arrival. False: wake for timers only, and take
+        the waiting messages just before the due timers run, for a node whose work is paced by
+        its timers (a plant, a watchdog, a recorder): it then costs one wake-up per tick
+        instead of one per message. Its readers must be deep enough to hold the messages of
+        one tick. Not rclpy API: :func:`exo_has_runtime.spin_paced` chooses it.
+
+    """
+
+    def __init__(self, *, context: Context | None = None, wake_on_messages: bool = True) -> None:
         self.context = context if context is not None else get_default_context()
+        self.wake_on_messages = wake_on_messages
         self._nodes: list[Node] = []
         self._waitset: WaitSet | None = None
         self._attached_version: tuple[int, ...] | None = None
+        self._subscriptions: list[Any] = []
+        self._timer_list: list[Any] = []
         self._shutdown = False
 
     def add_node(self, node: Node) -> bool:
@@ -54,14 +72,17 @@ class SingleThreadedExecutor:
         return True
 
     def _ready_waitset(self) -> WaitSet:
+        """Return the wait set, rebuilt with the entity lists when a node's entities change."""
         version = tuple(node.entities_version for node in self._nodes)
         if self._waitset is None or version != self._attached_version:
             waitset = WaitSet(self.context.participant)
             waitset.attach(self.context.guard_condition)
             for condition in self.context.graph_conditions:
                 waitset.attach(condition)
-            for node in self._nodes:
-                for subscription in node.subscriptions:
+            self._subscriptions = [s for node in self._nodes for s in node.subscriptions]
+            self._timer_list = [t for node in self._nodes for t in node.timers]
+            if self.wake_on_messages:
+                for subscription in self._subscriptions:
                     waitset.attach(subscription.condition)
             self._waitset = waitset
             self._attached_version = version
@@ -81,9 +102,6 @@ class SingleThreadedExecutor:
             raise ExternalShutdownException('the context was shut down by a signal')
         return not self.context.ok() or self._shutdown
 
-    def _timers(self) -> list[Any]:
-        return [timer for node in self._nodes for timer in node.timers]
-
     def spin_once(self, timeout_sec: float | None = None) -> None:
         """Wait for work up to ``timeout_sec`` (None: until some arrives) and do it.
 
@@ -100,15 +118,16 @@ class SingleThreadedExecutor:
         while True:
             if self._stopped():
                 return
+            waitset = self._ready_waitset()
             wait_ns = _MAX_WAIT_NS
-            for timer in self._timers():
-                due = timer.time_until_next_call()
-                if due is not None:
-                    wait_ns = min(wait_ns, due)
+            for timer in self._timer_list:
+                due = timer.due_in(timer.clock.now_ns())
+                if due is not None and due < wait_ns:
+                    wait_ns = due
             if deadline is not None:
                 wait_ns = min(wait_ns, max(0, deadline - time.monotonic_ns()))
             try:
-                triggered = self._ready_waitset().wait(wait_ns)
+                triggered = waitset.wait(wait_ns)
                 if self._stopped():
                     return
                 worked = self._run_ready(triggered > 0)
@@ -122,20 +141,26 @@ class SingleThreadedExecutor:
 
     def _run_ready(self, triggered: bool) -> bool:
         worked = False
-        if triggered:
-            if any(condition.triggered for condition in self.context.graph_conditions):
-                self.context.refresh_graph()
-            for node in list(self._nodes):
-                for subscription in node.subscriptions:
-                    # A callback may have destroyed it, or shut the context down.
-                    if subscription.destroyed or not self.context.ok():
-                        continue
-                    for message in subscription.take():
-                        subscription.callback(message)
+        if triggered and any(c.triggered for c in self.context.graph_conditions):
+            self.context.refresh_graph()
+        if triggered or not self.wake_on_messages:
+            for subscription in self._subscriptions:
+                # A callback may have destroyed it, or shut the context down.
+                if subscription.destroyed or not self.context.ok():
+                    continue
+                callback = subscription.callback
+                if subscription.wants_info:
+                    for message, info in subscription.take_with_info():
+                        callback(message, info)
                         worked = True
-        for timer in self._timers():
-            if timer.is_ready():
-                timer.call()
+                else:
+                    for message in subscription.take():
+                        callback(message)
+                        worked = True
+        for timer in self._timer_list:
+            now = timer.clock.now_ns()
+            if timer.due_in(now) == 0:
+                timer.call(now)
                 worked = True
         return worked
 
@@ -193,5 +218,21 @@ def spin_once(node: Node, *, executor: SingleThreadedExecutor | None = None,
     try:
         executor.add_node(node)
         executor.spin_once(timeout_sec=timeout_sec)
+    finally:
+        executor.remove_node(node)
+
+
+def spin_paced(node: Node) -> None:
+    """Run a node whose work is paced by its timers until shutdown (not rclpy API).
+
+    The executor wakes for the node's timers only and hands it the messages that arrived since
+    the last tick just before its due timers run (see :class:`SingleThreadedExecutor`). The
+    node's readers must hold a tick's messages, and it needs a timer at the rate at which it
+    must see its inputs.
+    """
+    executor = SingleThreadedExecutor(context=node.context, wake_on_messages=False)
+    try:
+        executor.add_node(node)
+        executor.spin()
     finally:
         executor.remove_node(node)

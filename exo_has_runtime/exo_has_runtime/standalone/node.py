@@ -6,8 +6,10 @@ endpoints carry ``typehash=RIHS01_<hex>;`` in USER_DATA, and the QoS maps as in 
 
 from __future__ import annotations
 
+import inspect
 import itertools
 import struct
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -99,14 +101,43 @@ class Publisher:
         return self._node.destroy_publisher(self)
 
 
-class Subscription:
-    """A ROS 2 subscription on one DDS reader."""
+def _wants_message_info(callback: Callable[..., Any]) -> bool:
+    """Whether a callback takes (message, message_info), as rclpy decides it.
 
-    def __init__(self, node: Node, msg_type: type[Any], topic: str, callback: Callable[[Any], Any],
+    Raises
+    ------
+    TypeError
+        If it can be called with neither one nor two arguments.
+
+    """
+    try:
+        signature = inspect.signature(callback)
+    except (TypeError, ValueError):  # a builtin without a signature: assume one argument
+        return False
+    for count in (1, 2):
+        try:
+            signature.bind(*range(count))
+        except TypeError:
+            continue
+        return count == 2
+    msg = 'a subscription callback takes one argument (the message) or two (and its info)'
+    raise TypeError(msg)
+
+
+class Subscription:
+    """A ROS 2 subscription on one DDS reader.
+
+    A callback of two arguments gets, as in rclpy, the message and a MessageInfo dictionary:
+    ``source_timestamp`` (the publisher's clock at publication) and ``received_timestamp``
+    (the system clock when taken) [ns].
+    """
+
+    def __init__(self, node: Node, msg_type: type[Any], topic: str, callback: Callable[..., Any],
                  qos: QoSProfile, reader: DataReader[Any], raw: bool) -> None:
         self.msg_type = msg_type
         self.topic_name = topic
         self.callback = callback
+        self.wants_info = _wants_message_info(callback)
         self.qos_profile = qos
         self.raw = raw
         self._node = node
@@ -121,25 +152,39 @@ class Subscription:
         return self.topic_name
 
     def take(self) -> list[Any]:
-        """Take the waiting messages (CDR bytes when raw), oldest first."""
-        taken = ddspy_take(self._reader._ref, _NEW_SAMPLES, _TAKE_BATCH)
-        if isinstance(taken, int):
-            raise RuntimeSeamError(f'taking from {self.topic_name} failed ({taken})')
-        if self.raw:
-            return [data for data, info in taken if info.valid_data]
-        deserialize = self.msg_type.deserialize
-        messages = []
-        for data, info in taken:
-            if not info.valid_data:
-                continue
-            try:
-                messages.append(deserialize(data))
-            except (ValueError, IndexError, struct.error) as exc:  # UnicodeError is a ValueError
-                # A malformed sample from a peer must not take the node down.
-                self._node.get_logger().error(
-                    f'dropped a malformed {self.msg_type.__ros_type__} on {self.topic_name}: '
-                    f'{exc}', throttle_duration_sec=1.0)
-        return messages
+        """Take every waiting message (CDR bytes when raw), oldest first."""
+        return [message for message, _ in self.take_with_info()]
+
+    def take_with_info(self) -> list[tuple[Any, dict[str, Any]]]:
+        """Take every waiting message with its MessageInfo dictionary, oldest first."""
+        result: list[tuple[Any, dict[str, Any]]] = []
+        while True:
+            taken = ddspy_take(self._reader._ref, _NEW_SAMPLES, _TAKE_BATCH)
+            if isinstance(taken, int):
+                raise RuntimeSeamError(f'taking from {self.topic_name} failed ({taken})')
+            received = time.time_ns()
+            for data, info in taken:
+                if not info.valid_data:
+                    continue
+                message = data if self.raw else self._deserialize(data)
+                if message is not None:
+                    result.append((message, {
+                        'source_timestamp': info.source_timestamp,
+                        'received_timestamp': received,
+                        'publication_sequence_number': None,
+                        'reception_sequence_number': None}))
+            if len(taken) < _TAKE_BATCH:
+                return result
+
+    def _deserialize(self, data: bytes) -> Any:
+        try:
+            return self.msg_type.deserialize(data)
+        except (ValueError, IndexError, struct.error) as exc:  # UnicodeError is a ValueError
+            # A malformed sample from a peer must not take the node down.
+            self._node.get_logger().error(
+                f'dropped a malformed {self.msg_type.__ros_type__} on {self.topic_name}: '
+                f'{exc}', throttle_duration_sec=1.0)
+            return None
 
     def get_publisher_count(self) -> int:
         """Return the number of matched publishers."""
@@ -184,14 +229,13 @@ class Timer:
         self.missed_periods = 0
         self._canceled = not autostart
         self._sim = clock.ros_time_is_active if isinstance(clock, Clock) else False
-        self._next_ns = clock.now().nanoseconds + period_ns
+        self._next_ns = clock.now_ns() + period_ns
 
-    def _rebase_if_time_source_changed(self) -> None:
-        now = self.clock.now().nanoseconds
+    def _rebase_if_time_source_changed(self, now: int) -> None:
         # A new time source, or time jumping back (a restarted simulation): restart the period.
-        jumped_back = now < self._next_ns - self.timer_period_ns
-        if self.clock.ros_time_is_active != self._sim or jumped_back:
-            self._sim = self.clock.ros_time_is_active
+        sim = self.clock.ros_time_is_active
+        if sim != self._sim or now < self._next_ns - self.timer_period_ns:
+            self._sim = sim
             self._next_ns = now + self.timer_period_ns
 
     def is_canceled(self) -> bool:
@@ -205,22 +249,30 @@ class Timer:
     def reset(self) -> None:
         """Restart the period from now."""
         self._canceled = False
-        self._next_ns = self.clock.now().nanoseconds + self.timer_period_ns
+        self._next_ns = self.clock.now_ns() + self.timer_period_ns
+
+    def due_in(self, now: int) -> int | None:
+        """Nanoseconds from ``now`` (a read of :attr:`clock`) to the next call; None if cancelled.
+
+        The executor reads each clock once per pass and asks every timer with that reading.
+        """
+        if self._canceled:
+            return None
+        self._rebase_if_time_source_changed(now)
+        return max(0, self._next_ns - now)
 
     def time_until_next_call(self) -> int | None:
         """Nanoseconds until the timer is due (None when cancelled)."""
-        if self._canceled:
-            return None
-        self._rebase_if_time_source_changed()
-        return max(0, self._next_ns - self.clock.now().nanoseconds)
+        return self.due_in(self.clock.now_ns())
 
     def is_ready(self) -> bool:
         """Whether the timer is due."""
-        return self.time_until_next_call() == 0
+        return self.due_in(self.clock.now_ns()) == 0
 
-    def call(self) -> None:
-        """Advance to the next period and run the callback."""
-        now = self.clock.now().nanoseconds
+    def call(self, now: int | None = None) -> None:
+        """Advance to the next period and run the callback (``now``: a fresh clock read)."""
+        if now is None:
+            now = self.clock.now_ns()
         late_periods = (now - self._next_ns) // self.timer_period_ns
         if late_periods > 0:
             self.missed_periods += late_periods
