@@ -13,7 +13,7 @@ setup(
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*.yaml')),
     ],
-    package_data={package_name: ['data/*.csv', 'data/README.md']},
+    package_data={package_name: ['data/*.csv', 'data/README.md', 'data/emps/*']},
     include_package_data=True,
     install_requires=['setuptools'],
     zip_safe=True,
@@ -31,6 +31,7 @@ setup(
         ],
         'exo_has.commands': [
             'design-check = exo_has_sim.design_check:main',
+            'diagnose = exo_has_sim.diagnosis.cli:main',
         ],
     },
 )

@@ -17,3 +17,15 @@ class KinematicsError(SimError, ValueError):
 
 class SimulationError(SimError, RuntimeError):
     """A simulation that cannot be run or diverged."""
+
+
+class DiagnosisError(SimError):
+    """A model-error diagnosis that cannot be made (base of the diagnosis errors)."""
+
+
+class MeasurementError(DiagnosisError, ValueError):
+    """Measured data that are missing, malformed, or in the wrong units (names the problem)."""
+
+
+class FitError(DiagnosisError, RuntimeError):
+    """A fit that cannot be made or did not converge to a usable result."""

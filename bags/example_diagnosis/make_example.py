@@ -1,0 +1,103 @@
+"""Make the worked example: a simulated "measured" session with a hidden effect, and its report.
+
+The session is NOT a recording of real hardware: it is made by the separate truth plant of the
+acceptance tests (``test/truth_plant.py``, a HAS written from the paper independently of the
+project's model), draw seed 4242 on the hip, walking at 0.85 strides/s for 20 s in closed loop
+under its own PD controller at 200 Hz, with the hard-to-know parameters drawn +-30 % around
+nominal, sensor noise, and a hidden effect: Coulomb friction of 80 N in the cylinder's seals.
+The columns are written as the plant node and controller would publish them, into a rosbag2
+bag (MCAP, zstd chunks): ``/left_hip/has_state``, ``/left_hip/has_command`` (each answering a
+state 1 ms after it) and ``/joint_reference``; then ``exo-has diagnose`` writes its report.
+
+Run from the repository root: ``.venv/bin/python bags/example_diagnosis/make_example.py``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[1]
+sys.path.insert(0, str(ROOT / 'test'))
+
+import truth_plant as tp  # noqa: E402
+
+from exo_has_runtime.bag import BagWriter  # noqa: E402
+from exo_has_runtime.standalone.messages import default_registry  # noqa: E402
+from exo_has_sim.diagnosis.cli import main  # noqa: E402
+from exo_has_sim.kinematics import Linkage  # noqa: E402
+
+SEED = 4242
+JOINT = 'left_hip'
+FRICTION = 80.0  # N
+T0_NS = 1_764_000_000_000_000_000
+
+
+def stamp(message: object, ns: int) -> None:
+    """Set a message's header stamp to ns [ns since the epoch]."""
+    header = message.header  # type: ignore[attr-defined]
+    header.stamp.sec, header.stamp.nanosec = divmod(ns, 1_000_000_000)
+
+
+def write_bag(draw: tp.Draw, path: Path) -> None:
+    """Write a draw's commands, states and references to a rosbag2 MCAP bag at path."""
+    registry = default_registry()
+    state_type = registry.get_message('exo_has_msgs/msg/HasState')
+    command_type = registry.get_message('exo_has_msgs/msg/HasCommand')
+    joints_type = registry.get_message('sensor_msgs/msg/JointState')
+    linkage = Linkage.from_parameters(tp.nominal_parameters('hip'))
+    c = draw.columns
+    angles = np.asarray(linkage.angle(c['reference']), dtype=float)
+    period_ns = round(draw.period * 1e9)
+    with BagWriter(path, compress=True) as writer:
+        writer.add_topic(f'/{JOINT}/has_state', 'exo_has_msgs/msg/HasState')
+        writer.add_topic(f'/{JOINT}/has_command', 'exo_has_msgs/msg/HasCommand')
+        writer.add_topic('/joint_reference', 'sensor_msgs/msg/JointState')
+        for k in range(len(c['time'])):
+            t = T0_NS + k * period_ns
+            reference = joints_type(name=[JOINT], position=[float(angles[k])], velocity=[],
+                                    effort=[])
+            stamp(reference, t)
+            writer.write('/joint_reference', t, registry.serialize(reference))
+            state = state_type(joint=JOINT, position=float(c['position'][k]),
+                               velocity=math.nan, pressure_a=float(c['pressure_a'][k]),
+                               pressure_b=float(c['pressure_b'][k]),
+                               motor_speed=float(c['motor_speed'][k]),
+                               motor_speed_command=float(c['motor_speed_command'][k - 1])
+                               if k else 0.0, motor_current=math.nan,
+                               load_force=float(c['load_force'][k]), valve_mode=1)
+            stamp(state, t)
+            writer.write(f'/{JOINT}/has_state', t, registry.serialize(state))
+            command = command_type(joint=JOINT, motor_speed=float(c['motor_speed_command'][k]),
+                                   enable=True)
+            stamp(command, t + 1_000_000)
+            writer.write(f'/{JOINT}/has_command', t + 1_000_000, registry.serialize(command))
+
+
+def make() -> int:
+    """Make the example's bag, its diagnosis report and JSON; return the exit code."""
+    os.chdir(ROOT)  # the report names the bag by its path from the repository root
+    here = HERE.relative_to(ROOT)
+    draw = tp.draw(SEED, 'hip', effect='coulomb_friction', size=FRICTION, excitation='walk')
+    bag = here / 'bag'
+    if bag.exists():
+        for file in bag.iterdir():
+            file.unlink()
+        bag.rmdir()
+    write_bag(draw, bag)
+    truth = {'effect': draw.effect, 'size': draw.size, 'parameters': draw.parameters,
+             'noise': draw.noise, 'load_mass': draw.load_mass}
+    (here / 'truth.txt').write_text(
+        'Hidden in the session (not read by the diagnosis):\n'
+        + '\n'.join(f'{k}: {v}' for k, v in truth.items()) + '\n', encoding='utf-8')
+    return main([str(bag), '--joint', JOINT, '--load-mass', str(draw.load_mass), '--report',
+                 str(here / 'report'), '--json', str(here / 'diagnosis.json')])
+
+
+if __name__ == '__main__':
+    sys.exit(make())

@@ -1,0 +1,298 @@
+"""Fitting a plant's parameters to measured windows, with confidence intervals.
+
+The residual of a window is the measured output minus the predicted one, times the output's
+weight (the diagnosis makes each output's robust residual RMS 1 under the baseline, so that
+position [m], pressure [Pa] and motor speed [rad/s] count alike); the cost is the mean robust
+loss of the residuals (:func:`robust_loss`, soft L1). Parameters are searched in scaled
+coordinates (log of the value over its start for positive ones) by
+``scipy.optimize.least_squares`` (trust region reflective, bounds), with a forward-difference
+Jacobian whose perturbed candidates are all simulated in one call of the plant.
+
+Confidence intervals come from the Gauss-Newton covariance ``sigma^2 (J^T J)^-1`` at the
+optimum (``sigma`` the residuals' robust standard deviation), inflated by ``N / N_eff``: the
+residuals of a window are correlated along it (an error accumulates), and
+:func:`~exo_has_sim.diagnosis.compare.effective_samples` counts how many independent samples
+they are worth. Intervals of log-scale parameters are symmetric in the log:
+``value exp(+-1.96 s)``. They do not include the error of the windows' initial states, which
+come from noisy measurements.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import least_squares
+
+from exo_has_sim.diagnosis.compare import Span, effective_samples, fit_percent
+from exo_has_sim.diagnosis.plants import Parameter, Plant
+from exo_has_sim.errors import DiagnosisError, FitError, SimulationError
+
+FloatArray = NDArray[np.float64]
+
+#: Step of the forward-difference Jacobian in search coordinates (1 % for log parameters).
+JACOBIAN_STEP = 0.01
+#: Scale of the robust loss, in weighted residual units (1 is the baseline's robust RMS).
+LOSS_SCALE = 2.0
+#: Two-sided 95 % quantile of the normal distribution.
+Z95 = 1.959963984540054
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """Predictions of one candidate over a set of windows.
+
+    Attributes
+    ----------
+    predicted, measured : FloatArray
+        Outputs, shape (windows, horizon, outputs).
+    weights : FloatArray
+        Weight of each output (residual units per output unit).
+
+    """
+
+    predicted: FloatArray
+    measured: FloatArray
+    weights: FloatArray
+
+    @property
+    def residuals(self) -> FloatArray:
+        """Weighted residuals (measured - predicted), shape (windows, horizon, outputs)."""
+        return (self.measured - self.predicted) * self.weights
+
+    @property
+    def cost(self) -> float:
+        """Mean robust loss of the weighted residuals (:func:`robust_loss`)."""
+        return float(np.mean(robust_loss(self.residuals)))
+
+    def window_costs(self) -> FloatArray:
+        """Mean robust loss of each window, shape (windows,)."""
+        return np.asarray(np.mean(robust_loss(self.residuals), axis=(1, 2)), dtype=float)
+
+    def window_output_costs(self) -> FloatArray:
+        """Mean robust loss of each window and output, shape (windows, outputs)."""
+        return np.asarray(np.mean(robust_loss(self.residuals), axis=1), dtype=float)
+
+    def output_costs(self) -> FloatArray:
+        """Mean robust loss of each output's weighted residuals."""
+        return np.asarray(np.mean(robust_loss(self.residuals), axis=(0, 1)), dtype=float)
+
+    def fit(self, output: int = 0) -> float:
+        """MATLAB fit [%] of one output over these windows."""
+        return fit_percent(self.measured[..., output], self.predicted[..., output])
+
+
+@dataclass(frozen=True)
+class Fit:
+    """Fitted parameters with their confidence intervals.
+
+    Attributes
+    ----------
+    values : dict[str, float]
+        Every parameter of the candidate (fitted and fixed).
+    free : tuple[Parameter, ...]
+        The fitted ones.
+    interval : dict[str, tuple[float, float]]
+        95 % confidence interval of each fitted parameter.
+    cost : float
+        Mean square weighted residual on the estimation windows.
+    evaluations : int
+        Candidates simulated.
+    converged : bool
+        Whether the optimiser met its tolerance (not its evaluation budget).
+    at_bound : tuple[str, ...]
+        Fitted parameters that ended on a bound.
+    residual : FloatArray or None
+        Weighted estimation residuals at the optimum, flat.
+    jacobian : FloatArray or None
+        Their derivative by the search coordinates of ``free``, shape (residuals, free).
+
+    """
+
+    values: dict[str, float]
+    free: tuple[Parameter, ...]
+    interval: dict[str, tuple[float, float]] = field(default_factory=dict)
+    cost: float = math.nan
+    evaluations: int = 0
+    converged: bool = True
+    at_bound: tuple[str, ...] = ()
+    residual: FloatArray | None = field(default=None, repr=False)
+    jacobian: FloatArray | None = field(default=None, repr=False)
+
+
+def robust_loss(residuals: FloatArray, scale: float = LOSS_SCALE) -> FloatArray:
+    """Soft-L1 loss ``2 c^2 (sqrt(1 + (r / c)^2) - 1)``: r^2 for small r, 2 c |r| for large.
+
+    The HAS's compact valve makes the model's pressure jump by up to a megapascal when the
+    motor speed passes zero and the spool dips towards free mode for a millisecond: where
+    exactly depends on the speed to a fraction of a rad/s, so model and data can disagree by
+    far more than the noise at a few samples, for any parameters. A quadratic cost would let
+    those few samples steer the fit; this loss counts them linearly.
+    """
+    z = np.asarray(residuals, dtype=float) / scale
+    return np.asarray(2.0 * scale ** 2 * (np.sqrt(1.0 + z * z) - 1.0), dtype=float)
+
+
+def robust_rms(residuals: FloatArray) -> float:
+    """Robust standard deviation, 1.4826 times the median absolute deviation."""
+    r = np.asarray(residuals, dtype=float).ravel()
+    r = r[np.isfinite(r)]
+    return float(1.4826 * np.median(np.abs(r - np.median(r)))) if r.size else math.nan
+
+
+def output_weights(plant: Plant) -> FloatArray:
+    """1 / standard deviation over the record of each output of a plant."""
+    spread = [float(np.std(plant.measurement.signal(name))) for name in plant.outputs]
+    if min(spread) <= 0.0:
+        raise DiagnosisError('an output is constant over the record: nothing to compare')
+    return 1.0 / np.asarray(spread)
+
+
+def evaluate(plant: Plant, candidates: Sequence[Mapping[str, float]], span: Span,
+             weights: FloatArray) -> list[Evaluation]:
+    """Simulate candidates over windows (one plant call) and pair them with the data.
+
+    A candidate whose simulation diverges gets infinite predictions (an infinite cost).
+    """
+    measured = plant.measured(span)
+    try:
+        predicted = plant.predict(candidates, span)
+    except SimulationError:
+        if len(candidates) == 1:
+            predicted = np.full((1, *measured.shape), np.inf)
+        else:  # find the culprits one by one
+            predicted = np.stack([evaluate(plant, [c], span, weights)[0].predicted
+                                  for c in candidates])
+    return [Evaluation(p, measured, weights) for p in predicted]
+
+
+def fit_parameters(plant: Plant, free: Sequence[Parameter], fixed: Mapping[str, float],
+                   span: Span, weights: FloatArray,
+                   initial: Mapping[str, float] | None = None, max_iterations: int = 12,
+                   tolerance: float = 3e-3) -> Fit:
+    """Fit the ``free`` parameters (the others held at ``fixed``) on the given windows.
+
+    Parameters
+    ----------
+    plant : Plant
+        The model.
+    free : Sequence[Parameter]
+        Parameters to fit.
+    fixed : Mapping[str, float]
+        Values of every other parameter of the candidate.
+    span : Span
+        The estimation windows.
+    weights : FloatArray
+        Output weights (:func:`output_weights`).
+    initial : Mapping[str, float] or None
+        Starting values (default each parameter's ``start``), clipped into the bounds.
+    max_iterations : int
+        Jacobian evaluations allowed.
+    tolerance : float
+        Relative cost change at which the search stops.
+
+    Raises
+    ------
+    FitError
+        If the starting point cannot be simulated.
+
+    """
+    free = tuple(free)
+    if not free:
+        evaluation = evaluate(plant, [dict(fixed)], span, weights)[0]
+        return Fit(dict(fixed), (), {}, evaluation.cost, 1)
+    lower = np.array([p.search_bounds()[0] for p in free])
+    upper = np.array([p.search_bounds()[1] for p in free])
+    start_values = {p.name: p.start for p in free} | dict(initial or {})
+    z0 = np.array([p.to_search(min(max(start_values[p.name], p.lower), p.upper))
+                   for p in free])
+    z0 = np.clip(z0, lower + 1e-9, upper - 1e-9)
+    cache: dict[bytes, FloatArray] = {}
+    jacobians: dict[bytes, FloatArray] = {}
+    count = [0]
+
+    def candidate(z: FloatArray) -> dict[str, float]:
+        values = dict(fixed)
+        for p, zi in zip(free, z, strict=True):
+            values[p.name] = p.from_search(float(zi))
+        return values
+
+    def residual_batch(points: Sequence[FloatArray]) -> list[FloatArray]:
+        count[0] += len(points)
+        found = evaluate(plant, [candidate(z) for z in points], span, weights)
+        out = []
+        if len(cache) > 2 * len(free) + 4:  # only the latest point and its Jacobian matter
+            cache.clear()
+        for z, evaluation in zip(points, found, strict=True):
+            r = evaluation.residuals.ravel()
+            r = np.where(np.isfinite(r), r, 1e3)  # a diverged candidate: a large residual
+            cache[z.tobytes()] = r
+            out.append(r)
+        return out
+
+    def fun(z: FloatArray) -> FloatArray:
+        key = z.tobytes()
+        return cache[key] if key in cache else residual_batch([z])[0]
+
+    def jac(z: FloatArray) -> FloatArray:
+        base = fun(z)
+        steps = []
+        for i in range(len(z)):
+            step = JACOBIAN_STEP if z[i] + JACOBIAN_STEP <= upper[i] else -JACOBIAN_STEP
+            steps.append(step)
+        points = [z + np.eye(len(z))[i] * steps[i] for i in range(len(z))]
+        columns = [(r - base) / s for r, s in zip(residual_batch(points), steps, strict=True)]
+        jacobians.clear()  # the last one is kept for the intervals
+        jacobians[z.tobytes()] = np.column_stack(columns)
+        return jacobians[z.tobytes()]
+
+    r0 = fun(z0)
+    if not np.all(np.abs(r0) < 1e3):
+        msg = f'the starting point of the fit cannot be simulated: {candidate(z0)}'
+        raise FitError(msg)
+    result = least_squares(fun, z0, jac=jac, bounds=(lower, upper), method='trf',
+                           x_scale=1.0, ftol=tolerance, xtol=tolerance, gtol=1e-8,
+                           max_nfev=max_iterations * 2, loss='soft_l1', f_scale=LOSS_SCALE)
+    z = np.asarray(result.x, dtype=float)
+    values = candidate(z)
+    residual = fun(z)
+    jacobian = jacobians[z.tobytes()] if z.tobytes() in jacobians else jac(z)
+    shape = (span.count, span.horizon, len(weights))
+    interval = confidence_intervals(free, z, jacobian, residual, shape)
+    width = upper - lower
+    at_bound = tuple(p.name for p, zi, lo, hi, w in zip(free, z, lower, upper, width,
+                                                        strict=True)
+                     if min(zi - lo, hi - zi) < 1e-3 * w)
+    return Fit(values, free, interval, float(np.mean(robust_loss(residual))), count[0],
+               bool(result.status > 0), at_bound, residual, jacobian)
+
+
+def confidence_intervals(free: Sequence[Parameter], z: FloatArray, jacobian: FloatArray,
+                         residual: FloatArray,
+                         shape: tuple[int, int, int]) -> dict[str, tuple[float, float]]:
+    """95 % intervals from ``sigma^2 (J^T J)^-1`` inflated for correlated residuals.
+
+    ``residual`` is the flat weighted residual vector of shape (windows, horizon, outputs);
+    a parameter the data do not determine (a singular direction) gets an unbounded interval.
+    """
+    n, p = jacobian.shape
+    if n <= p:
+        return {q.name: (-math.inf, math.inf) for q in free}
+    sigma2 = robust_rms(residual) ** 2 * n / (n - p)
+    by_output = residual.reshape(shape)
+    n_eff = min(effective_samples(by_output[..., k]) for k in range(shape[2]))
+    inflation = max(1.0, shape[0] * shape[1] / n_eff)
+    information = jacobian.T @ jacobian
+    covariance = np.linalg.pinv(information, rcond=1e-12) * sigma2 * inflation
+    out = {}
+    for i, q in enumerate(free):
+        sd = math.sqrt(max(float(covariance[i, i]), 0.0))
+        if not math.isfinite(sd) or information[i, i] == 0.0:
+            out[q.name] = (-math.inf, math.inf)
+            continue
+        low, high = z[i] - Z95 * sd, z[i] + Z95 * sd
+        out[q.name] = (q.from_search(min(low, 700.0)), q.from_search(min(high, 700.0)))
+    return out

@@ -1,0 +1,641 @@
+"""The plants a diagnosis fits: the project's HAS model and a generic mass, windowed.
+
+A plant here is the model of one actuator as a function of its parameters: given parameter
+candidates (dicts of values by name) and the windows of a measurement, it returns the outputs
+it predicts in every window, for all candidates at once, so that a finite-difference Jacobian
+or a grid over an effect's size costs one call.
+
+Comparison over windows. A hydraulic cylinder integrates the pump's flow, so a simulation run
+open loop from the measured command over a whole record drifts with any small error of the
+flow gain or leakage, and the drift, not the dynamics, then dominates the error. The record is
+cut into windows; each window starts from the measured state at its first sample and is
+simulated from the measured input (and load) alone, through an unscored burn-in, then over the
+scored horizon (a multi-step-ahead prediction, as MATLAB's ``compare`` with a prediction
+horizon, or a multiple-shooting simulation; see :mod:`~exo_has_sim.diagnosis.compare`). The
+initial state of a window comes from the data: the position and, when measured, the pressure,
+smoothed by a local cubic (Savitzky-Golay) fit over :data:`SMOOTHING_TIME`, which also gives
+the velocity (and, without a pressure sensor, the pressure from the force balance, Eq. 8). The
+HAS's motor speed and spool come from the commands sent before the window, through the model's
+own speed loop and valve. A window's inputs include those sent before it, so a transport delay
+acts on the true earlier commands. Without a load-force signal the HAS load is one constant,
+fitted with the baseline: a load that varies unmeasured then dominates the error.
+
+The HAS plant is :mod:`exo_has_sim.model` integrated by the compiled integrator of
+:mod:`exo_has_sim.simulate` (that of ``simulate_open_loop``, at tighter tolerances, see
+:data:`HAS_ATOL`), every (candidate, window) pair one of its "joints". The mass plant,
+``M dv/dt = F(t - delay) - F_v v - F_c sign(v) - offset`` with an optional force dead zone, is
+integrated here by implicit Euler with exact stick-slip (the velocity is zero while the net
+force stays within the Coulomb level), which keeps a sharp sign(v) stable at any step.
+"""
+
+from __future__ import annotations
+
+import math
+from abc import ABC, abstractmethod
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+from scipy.signal import lfilter, savgol_filter
+
+from exo_has_sim import model, simulate
+from exo_has_sim.diagnosis.compare import Span
+from exo_has_sim.diagnosis.data import Measurement
+from exo_has_sim.errors import DiagnosisError, SimulationError
+from exo_has_sim.parameters import Effects, HasParameters
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+Candidate = Mapping[str, float]
+
+#: Span of the local cubic fit that smooths the measured signals for the initial states [s].
+SMOOTHING_TIME = 0.05
+#: Largest transport delay a plant can be given [s]; windows start after it.
+MAX_DELAY = 0.1
+GRAVITY = 9.81  # m/s^2
+#: Relative tolerance of the HAS windows' integration.
+HAS_RTOL = 1e-3
+#: Absolute tolerances of (x [m], v [m/s], p_A [Pa], n [rad/s], spool [-], void [m^3]), ten
+#: times tighter than :mod:`exo_has_sim.simulate`'s defaults, which suit a plant node but not a
+#: comparison with data at a sensor's resolution: where the motor speed passes zero, the spool
+#: dips towards free mode and ``(1 - s) G_free p`` drains the chamber at a rate that a spool
+#: error of 1e-3 changes by 60 MPa/s; at the default tolerances the simulated pressure there
+#: was off by up to 0.8 MPa and the position by 0.1 mm (against a tight-tolerance run), at
+#: these 60 kPa and 13 um, the level of the sensors' noise, for 1.6 times the steps.
+HAS_ATOL = np.array([1e-7, 1e-5, 1e3, 1e-3, 1e-5, 1e-10])
+#: Most joints (candidate x window pairs) integrated in one call, which bounds the memory of
+#: the state history (a call holds horizon x joints x 11 floats).
+MAX_JOINTS = 2048
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """A parameter a diagnosis can fit, in SI units, searched between bounds.
+
+    A positive parameter is searched in log scale (a relative step means the same for a
+    leakage of 1e-13 and a modulus of 1e9); one that may take either sign (a force offset),
+    linearly in units of ``scale``.
+
+    Attributes
+    ----------
+    name : str
+        Identifier (an attribute of :class:`exo_has_sim.parameters.HasParameters` or
+        :class:`~exo_has_sim.parameters.Effects` for the HAS).
+    unit : str
+        SI unit.
+    start : float
+        Starting value of a fit.
+    lower, upper : float
+        Bounds.
+    description : str
+        What it is.
+    scale : float or None
+        None for a log-scale search (bounds then positive); else the size of a unit step
+        of the linear search.
+    grid : tuple[float, ...]
+        Plausible values tried before a fit (an effect's size); empty for none.
+
+    """
+
+    name: str
+    unit: str
+    start: float
+    lower: float
+    upper: float
+    description: str
+    scale: float | None = None
+    grid: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        positive = self.scale is not None or self.lower > 0.0
+        if not (positive and self.lower <= self.start <= self.upper) \
+                or (self.scale is not None and not self.scale > 0.0):
+            msg = (f'parameter {self.name}: start {self.start!r} must lie within its bounds '
+                   f'[{self.lower!r}, {self.upper!r}] (positive for a log-scale search) and a '
+                   f'linear scale {self.scale!r} must be positive')
+            raise DiagnosisError(msg)
+
+    @property
+    def log(self) -> bool:
+        """Whether the parameter is searched in log scale."""
+        return self.scale is None
+
+    def to_search(self, value: float) -> float:
+        """Search coordinate of a value."""
+        if self.scale is None:
+            return math.log(value / self.start)
+        return (value - self.start) / self.scale
+
+    def from_search(self, z: float) -> float:
+        """Value of a search coordinate."""
+        if self.scale is None:
+            return self.start * math.exp(z)
+        return self.start + z * self.scale
+
+    def search_bounds(self) -> tuple[float, float]:
+        """Bounds in the search coordinate."""
+        return self.to_search(self.lower), self.to_search(self.upper)
+
+
+def smooth(values: FloatArray, period: float, derivative: int = 0) -> FloatArray:
+    """Savitzky-Golay smoothing (cubic over :data:`SMOOTHING_TIME`) or its derivative."""
+    length = max(5, 2 * round(SMOOTHING_TIME / period / 2.0) + 1)
+    length = min(length, (len(values) - 1) // 2 * 2 + 1)
+    result = savgol_filter(values, length, 3, deriv=derivative, delta=period, mode='interp')
+    return np.asarray(result, dtype=float)
+
+
+class Plant(ABC):
+    """A model of one actuator whose outputs can be predicted over windows of a measurement.
+
+    Attributes
+    ----------
+    kind : str
+        ``'has'`` or ``'mass'``.
+    measurement : Measurement
+        The data.
+    outputs : tuple[str, ...]
+        Measured outputs the model predicts (``position`` first).
+    fixed : dict[str, float]
+        Values of the baseline's parameters that are not fitted.
+
+    """
+
+    kind: str
+    measurement: Measurement
+    outputs: tuple[str, ...]
+
+    @property
+    @abstractmethod
+    def baseline(self) -> tuple[Parameter, ...]:
+        """Parameters of the baseline that are re-estimated (the hard-to-know ones)."""
+
+    @property
+    @abstractmethod
+    def effects(self) -> tuple[str, ...]:
+        """Ids of the effects this plant can be extended with."""
+
+    @abstractmethod
+    def effect_parameters(self, effect: str) -> tuple[Parameter, ...]:
+        """Parameters of an effect in this plant; its first is the effect's size."""
+
+    @abstractmethod
+    def simulate(self, candidates: Sequence[Candidate], starts: IntArray, horizon: int,
+                 burn_in: int = 0) -> FloatArray:
+        """Predict the outputs over windows for each candidate.
+
+        Parameters
+        ----------
+        candidates : Sequence[Mapping[str, float]]
+            Parameter values by name; a name left out takes its nominal value, and an
+            effect whose size is left out is off.
+        starts : IntArray
+            First sample of each window (its measured state is the initial state).
+        horizon : int
+            Samples predicted after each start.
+        burn_in : int
+            Leading samples of the horizon that are not scored (a plant may use them to
+            refine its initial states).
+
+        Returns
+        -------
+        FloatArray
+            Shape (candidates, windows, horizon, outputs): the outputs at samples
+            ``start + 1`` to ``start + horizon``.
+
+        """
+
+    @property
+    def first_start(self) -> int:
+        """Earliest window start: the inputs of the longest delay must exist before it."""
+        return math.ceil(MAX_DELAY / self.measurement.period) + 2
+
+    def measured(self, span: Span) -> FloatArray:
+        """Measured outputs at the scored samples, shape (windows, horizon, outputs)."""
+        index = span.scored()
+        return np.stack([self.measurement.signal(name)[index] for name in self.outputs],
+                        axis=-1)
+
+    def predict(self, candidates: Sequence[Candidate], span: Span) -> FloatArray:
+        """Predict the outputs at the scored samples.
+
+        Returns an array of shape (candidates, windows, horizon, outputs).
+        """
+        return self.simulate(candidates, span.starts, span.steps,
+                             span.burn_in)[:, :, span.burn_in:]
+
+    def nominal(self) -> dict[str, float]:
+        """Return the starting values of the baseline's fitted parameters."""
+        return {p.name: p.start for p in self.baseline}
+
+
+def model_air_fraction(fraction: float) -> float:
+    """Convert a free-air volume fraction at atmospheric pressure to the model's parameter.
+
+    :func:`exo_has_sim.model.effective_bulk_modulus` takes the air's share of the mixture at
+    pressure p as ``a (p_atm / p_abs)^(1/1.4)``, exact for little air. A fraction alpha of the
+    volume at atmospheric pressure is ``alpha / (1 - alpha)`` of the oil's volume, and the air's
+    share at pressure p is ``alpha r / (1 - alpha + alpha r)`` with r that power ratio (at most
+    0.18 above 1 MPa), so ``a = alpha / (1 - alpha)`` to first order in ``alpha r``: without it
+    the model's parameter would read 25 % high at alpha = 0.2.
+    """
+    return fraction / (1.0 - fraction)
+
+
+def _delayed_indices(starts: IntArray, horizon: int, lag: int) -> IntArray:
+    return np.asarray(starts[None, :] - lag + np.arange(horizon)[:, None], dtype=np.int64)
+
+
+class HasPlant(Plant):
+    """The project's HAS model (issue 3) with nominal parameters, over windows.
+
+    The baseline re-estimates what section 4.2 of the paper calls hard to know: the bulk
+    modulus E_y, the pump leakage L_n and the damping B; without a load-force signal, also a
+    constant load force. Everything else keeps its value from the parameter set.
+
+    Outputs are the position and, when measured, the rodless pressure and the motor speed.
+    A window's initial motor speed and spool position are not taken from the (noisy) speed
+    signal but computed from the commands sent before it, through the model's own speed loop
+    and valve (first-order lags), so they carry the candidate's transport delay.
+
+    Parameters
+    ----------
+    measurement : Measurement
+        The data (plant ``'has'``).
+    params : HasParameters
+        Nominal parameters (joint type's set or a parameters file), effects off.
+    load_mass : float or None
+        Mass moved by the cylinder [kg] (replaces ``params.load_mass``).
+
+    """
+
+    kind = 'has'
+
+    def __init__(self, measurement: Measurement, params: HasParameters,
+                 load_mass: float | None = None) -> None:
+        self.measurement = measurement
+        base = params if load_mass is None else replace(params, load_mass=load_mass)
+        self.params = replace(base, effects=Effects())
+        self.outputs = ('position', *(name for name in ('pressure_a', 'motor_speed')
+                                      if measurement.has(name)))
+        period = measurement.period
+        self._x = smooth(measurement.position, period)
+        self._v = smooth(measurement.position, period, 1)
+        self._a = smooth(measurement.position, period, 2)
+        self._p = smooth(measurement.optional['pressure_a'], period) \
+            if measurement.has('pressure_a') else None
+        self._load: FloatArray | None = smooth(measurement.optional['load_force'], period) \
+            if measurement.has('load_force') else None
+        if self._p is not None:
+            guess = float(np.median(self._p)) * self.params.area_a
+        else:
+            guess = self.params.moving_mass * GRAVITY
+        self._load_guess = max(guess, 1.0)
+        self._u = np.ascontiguousarray(measurement.input, dtype=float)
+        self._drive_cache: dict[float, tuple[FloatArray, FloatArray]] = {}
+
+    @property
+    def baseline(self) -> tuple[Parameter, ...]:
+        """E_y, L_n, B (and a constant load force when none was measured)."""
+        p = self.params
+        out = [
+            Parameter('bulk_modulus', 'Pa', p.bulk_modulus, 5e7, 3e9,
+                      'effective bulk modulus E_y of oil, hose and seals'),
+            Parameter('pump_leakage', 'm^3/(s Pa)', p.pump_leakage, 1e-16, 1e-11,
+                      'pump inner leakage coefficient L_n'),
+            Parameter('damping', 'N s/m', p.damping, 10.0, 1e5, 'viscous damping B'),
+        ]
+        if self._load is None:
+            out.append(Parameter('load_force', 'N', self._load_guess, 1.0, 2.0 * p.peak_thrust,
+                                 'constant external load force pushing the cylinder in'))
+        return tuple(out)
+
+    @property
+    def effects(self) -> tuple[str, ...]:
+        """Every effect of the library."""
+        return ('coulomb_friction', 'pump_deadzone', 'transport_delay', 'quadratic_leakage',
+                'relief_valve', 'entrained_air')
+
+    def effect_parameters(self, effect: str) -> tuple[Parameter, ...]:
+        """Size parameters of the HAS effects (see :mod:`exo_has_sim.diagnosis.effects`)."""
+        from exo_has_sim.diagnosis.effects import has_effect_parameters
+
+        return has_effect_parameters(effect, self.params)
+
+    def candidate_parameters(self, values: Candidate) -> tuple[HasParameters, float]:
+        """Parameter set of a candidate and its transport delay [s]."""
+        from exo_has_sim.diagnosis.effects import RELIEF_CRACK_CONDUCTANCE
+
+        p = self.params
+        sizes = {k: float(values[k]) for k in ('coulomb_friction', 'pump_deadzone',
+                                               'quadratic_leakage') if k in values}
+        if 'entrained_air' in values:
+            sizes['entrained_air'] = model_air_fraction(float(values['entrained_air']))
+        if 'relief_crack_pressure' in values:
+            sizes['relief_crack_pressure'] = float(values['relief_crack_pressure'])
+            sizes['relief_crack_conductance'] = float(
+                values.get('relief_crack_conductance', RELIEF_CRACK_CONDUCTANCE))
+        params = replace(p, bulk_modulus=float(values.get('bulk_modulus', p.bulk_modulus)),
+                         pump_leakage=float(values.get('pump_leakage', p.pump_leakage)),
+                         damping=float(values.get('damping', p.damping)),
+                         effects=Effects(**sizes))
+        return params, float(values.get('transport_delay', 0.0))
+
+    def drive(self, delay: float) -> tuple[FloatArray, FloatArray]:
+        """Motor speed [rad/s] and spool position [-] at every sample from the commands.
+
+        The commands, delayed by ``delay`` (to the nearest sample) and held, through the
+        first-order speed loop (exact for held inputs); the spool follows the model's valve
+        law (:func:`exo_has_sim.model.spool_target`, driven by the speed and the measured or
+        load-bearing pressure) through its first-order lag, sample by sample.
+        """
+        key = round(delay / self.measurement.period)
+        if key not in self._drive_cache:
+            params = self.params
+            period = self.measurement.period
+            command = np.concatenate((np.full(key, self._u[0]), self._u[:len(self._u) - key]))
+            command = np.clip(command, -params.motor_speed_max, params.motor_speed_max)
+            # The speed at sample k + 1 results from the command held over sample k.
+            response = _first_order(command, period, params.motor_time_constant)
+            speed = np.concatenate(([command[0]], response[:-1]))
+            if self._p is not None:
+                pressure = self._p
+            else:
+                load = self._load if self._load is not None else np.full(len(speed),
+                                                                          self._load_guess)
+                pressure = load / params.area_a
+            prm = model.pack(params)
+            gain = 1.0 - math.exp(-period / params.valve_time_constant)
+            spool = np.empty(len(speed))
+            s = 1.0
+            for k in range(len(speed)):
+                spool[k] = s
+                s += gain * (model.spool_target(speed[k], pressure[k], s, prm) - s)
+            self._drive_cache[key] = (speed, spool)
+        return self._drive_cache[key]
+
+    def initial_states(self, params: HasParameters, delay: float, load: FloatArray,
+                       starts: IntArray) -> FloatArray:
+        """Return the initial state of each window, from the smoothed measurement."""
+        y0 = np.zeros((len(starts), model.N_STATE))
+        y0[:, model.X] = self._x[starts]
+        y0[:, model.V] = self._v[starts]
+        if self._p is not None:
+            y0[:, model.PA] = self._p[starts]
+        else:
+            # Eq. 8 solved for the pressure that gives the measured acceleration.
+            v = self._v[starts]
+            force = params.moving_mass * self._a[starts] + params.damping * v + load
+            fc = params.effects.coulomb_friction
+            if fc:
+                force += fc * np.tanh(v / params.effects.friction_smoothing_velocity)
+            y0[:, model.PA] = np.maximum(force / params.area_a, params.cavitation_pressure)
+        speed, spool = self.drive(delay)
+        y0[:, model.N] = speed[starts]
+        y0[:, model.S] = spool[starts]
+        return y0
+
+    def simulate(self, candidates: Sequence[Candidate], starts: IntArray, horizon: int,
+                 burn_in: int = 0) -> FloatArray:
+        """Predict the outputs over the windows for each candidate.
+
+        The burn-in is simulated like the rest: the stiff hydraulics forget an imperfect
+        initial velocity within it.
+        """
+        starts = np.asarray(starts, dtype=np.int64)
+        if starts.min() < self.first_start or starts.max() + horizon >= self.measurement.samples:
+            raise DiagnosisError('a window reaches outside the record')
+        out = np.empty((len(candidates), len(starts), horizon, len(self.outputs)))
+        chunk = max(1, MAX_JOINTS // len(starts))
+        for first in range(0, len(candidates), chunk):
+            out[first:first + chunk] = self._simulate_chunk(candidates[first:first + chunk],
+                                                            starts, horizon)
+        return out
+
+    def _simulate_chunk(self, candidates: Sequence[Candidate], starts: IntArray,
+                        horizon: int) -> FloatArray:
+        period = self.measurement.period
+        windows = len(starts)
+        packed, delays, commands, loads, states = [], [], [], [], []
+        for values in candidates:
+            params, delay = self.candidate_parameters(values)
+            lag = math.floor(delay / period + 1e-9)
+            # The simulator delays by the fraction of a period; whole periods shift the
+            # commands here, so that a window sees the commands sent before it.
+            packed.append(model.pack(params))
+            delays.append(delay - lag * period)
+            commands.append(self._u[_delayed_indices(starts, horizon, lag)])
+            if self._load is not None:
+                load = self._load[_delayed_indices(starts, horizon, 0)]
+                start_load = self._load[starts]
+            else:
+                level = float(values.get('load_force', self._load_guess))
+                load = np.full((horizon, windows), level)
+                start_load = np.full(windows, level)
+            loads.append(load)
+            states.append(self.initial_states(params, delay, start_load, starts))
+        states_out = _integrate(np.repeat(np.stack(packed), windows, axis=0),
+                                np.repeat(delays, windows), np.concatenate(states),
+                                np.concatenate(commands, axis=1), np.concatenate(loads, axis=1),
+                                period)
+        shape = (len(candidates), windows, horizon)
+        index = {'position': model.X, 'pressure_a': model.PA, 'motor_speed': model.N}
+        out = [np.moveaxis(states_out[1:, :, index[name]], 0, 1).reshape(shape)
+               for name in self.outputs]
+        return np.stack(out, axis=-1)
+
+
+def _integrate(packed: FloatArray, delay: FloatArray, y0: FloatArray, commands: FloatArray,
+               loads: FloatArray, period: float) -> FloatArray:
+    """Integrate N joints open loop at :data:`HAS_ATOL`, :data:`HAS_RTOL`.
+
+    :func:`exo_has_sim.simulate.simulate_open_loop` without its fixed absolute tolerances
+    (the same compiled integrator, called with the diagnosis's own); ``packed`` holds each
+    joint's :func:`exo_has_sim.model.pack` row and ``delay`` its transport delay [s].
+
+    Raises
+    ------
+    SimulationError
+        If a joint diverged.
+
+    """
+    states = np.empty((commands.shape[0] + 1, packed.shape[0], model.N_STATE))
+    simulate._open_loop(np.ascontiguousarray(y0), np.ascontiguousarray(packed),
+                        np.ascontiguousarray(commands), np.ascontiguousarray(loads), period,
+                        np.ascontiguousarray(delay, dtype=float), HAS_ATOL, HAS_RTOL,
+                        simulate.DEFAULT_STEP, states)
+    if not np.all(np.isfinite(states)):
+        raise SimulationError('the simulation diverged (NaN or infinite state)')
+    return states
+
+
+def _first_order(values: FloatArray, period: float, time_constant: float) -> FloatArray:
+    """Response at the samples of a first-order lag to an input held over each period."""
+    alpha = 1.0 - math.exp(-period / time_constant)
+    out = lfilter([alpha], [1.0, alpha - 1.0], values, zi=[(1.0 - alpha) * values[0]])
+    return np.asarray(out[0], dtype=float)
+
+
+@njit(cache=True)
+def _held_integral(cumulative: np.ndarray, force: np.ndarray, period: float, t: float) -> float:
+    """Integral from 0 to t [s] of the input held over each sample period."""
+    i = min(max(math.floor(t / period), 0), force.shape[0] - 1)
+    return float(cumulative[i] + (t - i * period) * force[i])
+
+
+@njit(cache=True)
+def _mass_windows(prm: np.ndarray, cumulative: np.ndarray, force: np.ndarray,
+                  starts: np.ndarray, x0: np.ndarray, v0: np.ndarray, horizon: int,
+                  period: float, substeps: int, out: np.ndarray) -> None:
+    """Integrate the mass plant over windows for candidates ``prm`` (M, Fv, F0, Fc, d, Fdz).
+
+    The initial positions and velocities ``x0``, ``v0`` have shape (candidates, windows).
+
+    The force acting over each substep is the mean of the delayed, held input over it
+    (``cumulative`` is its running integral), so the result is continuous in the delay.
+    Implicit Euler in the velocity with exact stick-slip, explicit in the position.
+    """
+    h = period / substeps
+    for c in range(prm.shape[0]):
+        mass, fv, offset, fc, delay, dead = (prm[c, 0], prm[c, 1], prm[c, 2], prm[c, 3],
+                                             prm[c, 4], prm[c, 5])
+        for w in range(starts.shape[0]):
+            x = x0[c, w]
+            v = v0[c, w]
+            t = starts[w] * period - delay
+            below = _held_integral(cumulative, force, period, t)
+            for k in range(horizon):
+                for _ in range(substeps):
+                    above = _held_integral(cumulative, force, period, t + h)
+                    f = (above - below) / h
+                    below = above
+                    t += h
+                    if dead > 0.0:
+                        f = math.copysign(max(abs(f) - dead, 0.0), f)
+                    drive = mass * v / h + f - offset
+                    if abs(drive) <= fc:
+                        v = 0.0
+                    else:
+                        v = (drive - math.copysign(fc, drive)) / (mass / h + fv)
+                    x += h * v
+                out[c, w, k] = x
+
+
+class MassPlant(Plant):
+    """A generic position actuator: a mass with viscous damping and a force offset.
+
+    ``M dv/dt = F - F_v v - offset``, input ``force`` [N], output ``position`` [m]. The
+    baseline fits M, F_v and the offset (a constant force: gravity on an inclined axis, a
+    sensor offset); the effects that apply are Coulomb friction, a transport delay of the
+    force, and a force dead zone (the library's pump_deadzone read as force).
+
+    Parameters
+    ----------
+    measurement : Measurement
+        The data (plant ``'mass'``).
+    mass : float
+        Nominal moving mass [kg] (``--load-mass``), the start of its fit.
+
+    """
+
+    kind = 'mass'
+    outputs = ('position',)
+    #: Longest integration step [s]: implicit Euler's relative error is about step / (2 M/F_v),
+    #: 0.04 % for the 0.3 s time constant of a 40 kg mass on 120 N s/m.
+    MAX_STEP = 2.5e-4
+
+    def __init__(self, measurement: Measurement, mass: float = 50.0) -> None:
+        if not (math.isfinite(mass) and mass > 0.0):
+            msg = f'the moving mass must be positive and finite [kg], got {mass!r}'
+            raise DiagnosisError(msg)
+        self.measurement = measurement
+        self.mass = mass
+        period = measurement.period
+        self._x = smooth(measurement.position, period)
+        self._v = smooth(measurement.position, period, 1)
+        self._a = smooth(measurement.position, period, 2)
+        force = measurement.input
+        self._force = np.ascontiguousarray(force, dtype=float)
+        self._cumulative = np.concatenate(([0.0], np.cumsum(force)[:-1])) * period
+        # Starting values by least squares on the smoothed motion (an inverse-model guess).
+        design = np.column_stack((self._a, self._v, np.ones_like(self._v)))
+        coef = np.linalg.lstsq(design, force, rcond=None)[0]
+        self._start_mass = float(np.clip(coef[0], 0.1 * mass, 10.0 * mass))
+        scale = float(np.std(force)) / max(float(np.std(self._v)), 1e-9)
+        self._start_damping = float(np.clip(coef[1], 1e-2 * scale, 10.0 * scale))
+        self._force_scale = max(float(np.std(force)), 1e-6)
+        self._start_offset = float(coef[2])
+
+    @property
+    def baseline(self) -> tuple[Parameter, ...]:
+        """Mass M, viscous friction F_v and the force offset."""
+        m, fv, f0 = self._start_mass, self._start_damping, self._start_offset
+        bound = float(np.max(np.abs(self._force)))
+        return (Parameter('mass', 'kg', m, m / 20.0, m * 20.0, 'moving mass M'),
+                Parameter('viscous_friction', 'N s/m', fv, fv / 100.0, fv * 100.0,
+                          'viscous friction F_v'),
+                Parameter('offset', 'N', f0, min(-bound, f0), max(bound, f0),
+                          'constant force opposing the input (gravity, a sensor offset)',
+                          scale=0.05 * self._force_scale))
+
+    @property
+    def effects(self) -> tuple[str, ...]:
+        """Coulomb friction, transport delay and a force dead zone."""
+        return ('coulomb_friction', 'transport_delay', 'pump_deadzone')
+
+    def effect_parameters(self, effect: str) -> tuple[Parameter, ...]:
+        """Size parameters of the mass plant's effects."""
+        from exo_has_sim.diagnosis.effects import mass_effect_parameters
+
+        return mass_effect_parameters(effect, float(np.max(np.abs(self._force))))
+
+    def simulate(self, candidates: Sequence[Candidate], starts: IntArray, horizon: int,
+                 burn_in: int = 0) -> FloatArray:
+        """Predict the position over the windows for each candidate.
+
+        A mass forgets an error of its initial velocity only over M/F_v (0.15 to 0.5 s), and a
+        velocity differentiated from a noisy position is noisy: its errors would bias the
+        fit (errors in variables). So the burn-in samples, which are not scored, estimate each
+        window's initial position and velocity: the model is linear in them but for the
+        friction's sign, and one run with the velocity perturbed gives the sensitivity, so
+        a 2 x 2 least-squares step per window corrects them, and a third run predicts.
+        """
+        starts = np.asarray(starts, dtype=np.int64)
+        if starts.min() < self.first_start or starts.max() + horizon >= self.measurement.samples:
+            raise DiagnosisError('a window reaches outside the record')
+        prm = np.array([[float(c.get('mass', self._start_mass)),
+                         float(c.get('viscous_friction', self._start_damping)),
+                         float(c.get('offset', self._start_offset)),
+                         float(c.get('coulomb_friction', 0.0)),
+                         float(c.get('transport_delay', 0.0)),
+                         float(c.get('pump_deadzone', 0.0))] for c in candidates])
+        period = self.measurement.period
+        substeps = max(1, math.ceil(period / self.MAX_STEP - 1e-9))
+        shape = (len(candidates), len(starts))
+        x0 = np.broadcast_to(self._x[starts], shape).copy()
+        v0 = np.broadcast_to(self._v[starts], shape).copy()
+
+        def run(x: FloatArray, v: FloatArray, steps: int) -> FloatArray:
+            out = np.empty((*shape, steps))
+            _mass_windows(prm, self._cumulative, self._force, starts, x, v, steps, period,
+                          substeps, out)
+            return out
+
+        if burn_in >= 3:
+            step = max(float(np.std(self._v)), 1e-9) * 1e-3
+            base = run(x0, v0, burn_in)
+            sensitivity = (run(x0, v0 + step, burn_in) - base) / step
+            error = self.measurement.position[starts[:, None] + np.arange(1, burn_in + 1)] \
+                - base
+            # Least squares of error = dx + sensitivity dv, per candidate and window.
+            n = float(burn_in)
+            s1, s2 = sensitivity.sum(axis=-1), (sensitivity ** 2).sum(axis=-1)
+            e1, es = error.sum(axis=-1), (error * sensitivity).sum(axis=-1)
+            det = n * s2 - s1 * s1
+            good = det > 1e-12 * n * s2
+            dv = np.where(good, (n * es - s1 * e1) / np.where(good, det, 1.0), 0.0)
+            x0 += np.where(good, (e1 - s1 * dv) / n, 0.0)
+            v0 += dv
+        return run(x0, v0, horizon)[..., None]

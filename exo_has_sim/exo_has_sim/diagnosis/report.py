@@ -1,0 +1,287 @@
+"""The diagnosis report: Markdown with PNG plots, and the text summary the command prints.
+
+``write_report(diagnosis, folder)`` writes ``report.md`` and its plots into the folder:
+predictions against the measurement on validation windows (nominal, baseline, extended and
+the paper's transfer function), the effect ranking, the residual tests with their 99 % bands,
+and the signatures of the candidate causes. Matplotlib runs with the Agg backend (no display).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from exo_has_sim.diagnosis.diagnose import Diagnosis, effect_title
+from exo_has_sim.diagnosis.effects import EFFECTS
+from exo_has_sim.diagnosis.selection import ALPHA, MIN_GAIN
+
+#: Validation windows shown in the prediction plot.
+SHOWN_WINDOWS = 4
+UNITS = {'position': ('mm', 1e3), 'pressure_a': ('MPa', 1e-6), 'motor_speed': ('rad/s', 1.0)}
+
+
+def summary(diagnosis: Diagnosis) -> str:
+    """Summarise in a few lines: the cause, its size and interval, the validated fits."""
+    fits = diagnosis.fits()
+    lines = [f'cause: {", ".join(diagnosis.causes) or "none"}']
+    parameters = diagnosis.parameters()
+    for effect, size in diagnosis.sizes().items():
+        name = diagnosis.plant.effect_parameters(effect)[0].name
+        low, high = parameters[name]['ci95']
+        unit = parameters[name]['unit']
+        lines.append(f'  {effect}: {size:.4g} {unit} (95 % interval {_number(low)} to '
+                     f'{_number(high)})')
+    for output in diagnosis.plant.outputs:
+        lines.append(f'validated {output} fit: nominal {fits["nominal"][output]:.2f} %, '
+                     f'baseline {fits["baseline"][output]:.2f} %, extended '
+                     f'{fits["extended"][output]:.2f} %')
+    if diagnosis.transfer is not None:
+        lines.append(f"paper's third-order transfer function: position fit "
+                     f'{diagnosis.transfer_fit:.2f} %')
+    return '\n'.join(lines)
+
+
+def _number(value: float | None) -> str:
+    return 'unbounded' if value is None or not math.isfinite(value) else f'{value:.4g}'
+
+
+def write_json(diagnosis: Diagnosis, path: Path) -> None:
+    """Write the JSON document of :meth:`Diagnosis.to_json`."""
+    path.write_text(json.dumps(diagnosis.to_json(), indent=1, default=_jsonable) + '\n',
+                    encoding='utf-8')
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    msg = f'cannot write {type(value).__name__} as JSON'
+    raise TypeError(msg)
+
+
+def write_report(diagnosis: Diagnosis, folder: Path, title: str | None = None) -> Path:
+    """Write ``report.md`` and its PNG plots into ``folder``; return the report's path."""
+    import matplotlib as mpl
+
+    mpl.use('Agg')
+    folder.mkdir(parents=True, exist_ok=True)
+    _plot_predictions(diagnosis, folder / 'predictions.png')
+    _plot_ranking(diagnosis, folder / 'ranking.png')
+    _plot_tests(diagnosis, folder / 'residual_tests.png')
+    _plot_signatures(diagnosis, folder / 'signatures.png')
+    path = folder / 'report.md'
+    path.write_text(_markdown(diagnosis, title), encoding='utf-8')
+    return path
+
+
+def _markdown(diagnosis: Diagnosis, title: str | None) -> str:
+    d = diagnosis
+    m = d.plant.measurement
+    doc = d.to_json()
+    data = doc['data']
+    out = [f'# {title or "Model-error diagnosis"}', '',
+           f'Data: `{m.source}`, {m.samples} samples at {1.0 / m.period:.4g} Hz '
+           f'({m.duration:.1f} s); plant `{d.plant.kind}`; outputs compared: '
+           f'{", ".join(d.plant.outputs)}.', '']
+    for note in m.notes:
+        out.append(f'- {note}')
+    out += ['', '## Verdict', '',
+            f'**Cause: {", ".join(effect_title(c) for c in d.causes) or "none"}**'
+            + (f' (`{"`, `".join(d.causes)}`)' if d.causes else ''), '']
+    if d.causes:
+        for effect, size in d.sizes().items():
+            name = d.plant.effect_parameters(effect)[0].name
+            low, high = doc['parameters'][name]['ci95']
+            out.append(f'- {effect_title(effect)}: {size:.4g} {doc["parameters"][name]["unit"]}'
+                       f', 95 % interval {_number(low)} to {_number(high)}. '
+                       f'{EFFECTS[effect].physics}.')
+    else:
+        out.append('No effect of the library improves the validated prediction significantly: '
+                   'the baseline with its re-estimated parameters explains the data as well '
+                   'as any extension.')
+    out += ['', '## How the model was compared', '',
+            f'Each of {d.windows.span.count} windows starts from the measured state, is '
+            f'simulated from the measured input for a burn-in of {data["burn_in"]:g} s, then '
+            f'scored over a horizon of {data["horizon"]:g} s; every third window '
+            f'({data["validation_windows"]}) is held out for validation, the others '
+            f'({data["estimation_windows"]}) estimate. Fit = 100 (1 - |y - y_hat| / '
+            "|y - mean(y)|) [%] over the validation windows, as MATLAB's `compare`. An effect "
+            f'is named when its validated cost falls by at least {MIN_GAIN:.0%}, the AIC on '
+            'the validation windows (score) is negative and the t-test across the validation '
+            f'windows gives p < {ALPHA:g}.', '',
+            '## Validated fits [%]', '', '| model | ' + ' | '.join(d.plant.outputs) + ' |',
+            '|---|' + '---|' * len(d.plant.outputs)]
+    for name, fits in doc['fits'].items():
+        out.append(f'| {name} | ' + ' | '.join(
+            '-' if fits.get(o) is None else f'{fits[o]:.2f}' for o in d.plant.outputs) + ' |')
+    out += ['', '![predictions](predictions.png)', '', '## Parameters of the extended model', '',
+            '| parameter | value | 95 % interval | start | unit |', '|---|---|---|---|---|']
+    for name, row in doc['parameters'].items():
+        low, high = row['ci95']
+        start = '-' if row['nominal'] is None else f'{row["nominal"]:.4g}'
+        flag = ' (at a bound)' if row['at_bound'] else ''
+        out.append(f'| {name} | {row["value"]:.4g}{flag} | {_number(low)} to {_number(high)} | '
+                   f'{start} | {row["unit"]} |')
+    out += ['', '## Ranking of the effects', '']
+    for k, step in enumerate(doc['steps']):
+        base = ' + '.join(['baseline', *d.causes[:k]])
+        out += [f'Step {k + 1}, each effect on top of {base}:', '',
+                '| effect | validated position fit [%] | cost ratio | score | p | size | '
+                'how |', '|---|---|---|---|---|---|---|']
+        for row in step:
+            fit = '-' if row['fit'] is None else f'{row["fit"]:.2f}'
+            how = 'joint fit' if row['jointly_fitted'] else 'size grid'
+            mark = ' **significant**' if row['significant'] else ''
+            out.append(f'| {row["effect"]}{mark} | {fit} | {row["cost_ratio"]:.3f} | '
+                       f'{row["score"]:+.1f} | {row["p_value"]:.1e} | {row["size"]:.4g} '
+                       f'{row["unit"]} | {how} |')
+        out.append('')
+    out += ['![ranking](ranking.png)', '', '## Residual tests (validation windows)', '',
+            '| model | test | lags outside the 99 % band | passed |', '|---|---|---|---|']
+    for name, test in d.tests.items():
+        model = name.split('_')[0]
+        out.append(f'| {model} | {test.name} | {test.outside:.0%} | '
+                   f'{"yes" if test.passed else "no"} |')
+    out += ['', 'A windowed simulation error accumulates along its window, so its '
+            'autocorrelation is never white; the cross-correlation with the input says whether '
+            'input-driven dynamics are missing.', '', '![residual tests](residual_tests.png)',
+            '', '## What the baseline gets wrong: signatures', '',
+            "Each signature bins the baseline's residuals (all windows) against the feature of "
+            'one cause. They overlap (friction, for one, also changes the pressure where it is '
+            'low and changing), so they show where the model is wrong; the validated fits '
+            'above, not the signatures, name the cause.', '',
+            '| signature | points to | statistic (t) | how |', '|---|---|---|---|']
+    for signature in d.signatures:
+        out.append(f'| {signature.title} | {signature.effect} | {signature.statistic:+.1f} | '
+                   f'{signature.description} |')
+    out += ['', '![signatures](signatures.png)', '']
+    if d.transfer is not None:
+        tf = d.transfer
+        out += ["## The paper's third-order transfer function", '',
+                f'G(s) = num(s) / den(s), num = {_poly(tf.num)}, den = {_poly(tf.den)}; poles '
+                f'{_roots(tf.poles())} rad/s, zeros {_roots(tf.zeros())} rad/s, velocity gain '
+                f'{tf.velocity_gain:.4g} (m/s per input unit), continuous by {tf.method}; '
+                f'validated position fit {d.transfer_fit:.2f} % (Sun et al. 2021 report 82.25 % '
+                'for their Eq. 15 on their own rig).', '']
+    out += [f'Diagnosis time: {d.elapsed:.1f} s.', '']
+    return '\n'.join(out)
+
+
+def _poly(coefficients: np.ndarray) -> str:
+    return '[' + ', '.join(f'{c:.4g}' for c in coefficients) + ']'
+
+
+def _roots(roots: np.ndarray) -> str:
+    if len(roots) == 0:
+        return 'none'
+    return ', '.join(f'{z.real:.4g}' if abs(z.imag) < 1e-9 else f'{z.real:.4g}{z.imag:+.4g}j'
+                     for z in roots)
+
+
+def _plot_predictions(d: Diagnosis, path: Path) -> None:
+    """One column per shown validation window, one row per output."""
+    import matplotlib.pyplot as plt
+
+    m = d.plant.measurement
+    span = d.windows.validation_span
+    shown = np.unique(np.linspace(0, span.count - 1, min(SHOWN_WINDOWS, span.count))
+                      .round().astype(int))
+    index = span.scored()
+    outputs = d.plant.outputs
+    fig, axes = plt.subplots(len(outputs), len(shown), figsize=(2.6 * len(shown) + 1.0,
+                                                               2.2 * len(outputs)),
+                             squeeze=False)
+    tf_prediction = d.transfer.predict(m.input, m.position, span) \
+        if d.transfer is not None else None
+    for k, output in enumerate(outputs):
+        unit, scale = UNITS.get(output, ('', 1.0))
+        for column, w in enumerate(shown):
+            ax = axes[k, column]
+            t = m.time[index[w]]
+            ax.plot(t, d.nominal.measured[w, :, k] * scale, 'k.', ms=2, label='measured')
+            ax.plot(t, d.nominal.predicted[w, :, k] * scale, color='0.6', lw=1,
+                    label='nominal')
+            ax.plot(t, d.baseline_validation.predicted[w, :, k] * scale, 'C0', lw=1,
+                    label='baseline (refitted)')
+            if d.causes:
+                ax.plot(t, d.extended_validation.predicted[w, :, k] * scale, 'C3', lw=1,
+                        label='extended')
+            if k == 0 and tf_prediction is not None:
+                ax.plot(t, tf_prediction[w] * scale, 'C2--', lw=1,
+                        label="paper's 3rd-order TF")
+            ax.grid(alpha=0.3)
+            ax.tick_params(labelsize=6)
+            if column == 0:
+                ax.set_ylabel(f'{output} [{unit}]', fontsize=7)
+            if k == len(outputs) - 1:
+                ax.set_xlabel('time [s]', fontsize=7)
+    axes[0, 0].legend(fontsize=6, loc='best')
+    fig.suptitle('validation windows: measured and predicted', fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
+def _plot_ranking(d: Diagnosis, path: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 0.45 * max(len(d.ranking), 2) + 1.0))
+    names = [s.effect for s in d.ranking][::-1]
+    ratios = [s.ratio for s in d.ranking][::-1]
+    colours = ['C3' if s.significant else '0.6' for s in d.ranking][::-1]
+    ax.barh(names, ratios, color=colours)
+    ax.axvline(1.0, color='k', lw=0.8)
+    ax.axvline(1.0 - MIN_GAIN, color='C3', lw=0.8, ls='--', label='largest ratio named')
+    ax.set_xlabel('validated cost / baseline cost (red: significant)')
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
+def _plot_tests(d: Diagnosis, path: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3))
+    for ax, kind in zip(axes, ('auto', 'cross'), strict=True):
+        for name, colour in (('baseline', 'C0'), ('extended', 'C3')):
+            test = d.tests[f'{name}_{kind}']
+            ax.plot(test.lags, test.values, 'o-', ms=2, color=colour, lw=0.8, label=name)
+        band = d.tests[f'baseline_{kind}'].band
+        ax.axhspan(-band, band, color='0.85', label='99 % band')
+        ax.set_title(d.tests[f'baseline_{kind}'].name, fontsize=9)
+        ax.set_xlabel('lag [samples]')
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
+def _plot_signatures(d: Diagnosis, path: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    count = len(d.signatures)
+    columns = 3
+    rows = max(1, math.ceil(count / columns))
+    fig, axes = plt.subplots(rows, columns, figsize=(10, 2.6 * rows), squeeze=False)
+    for ax, signature in zip(axes.ravel(), d.signatures, strict=False):
+        ax.errorbar(signature.centres, signature.means, yerr=signature.errors, fmt='o-', ms=3,
+                    lw=0.8, capsize=2)
+        ax.axhline(0.0, color='k', lw=0.6)
+        ax.set_title(f'{signature.effect}: t = {signature.statistic:+.1f}', fontsize=8)
+        ax.set_xlabel(signature.feature, fontsize=7)
+        ax.set_ylabel(signature.residual, fontsize=7)
+        ax.tick_params(labelsize=6)
+        if signature.id == 'small_input':
+            ax.set_xscale('log')
+    for ax in axes.ravel()[count:]:
+        ax.set_visible(False)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)

@@ -1,0 +1,336 @@
+"""Scoring the effects on held-out data, ranking them, and choosing the cause (or none).
+
+Every effect is fitted jointly with the baseline's re-estimated parameters (an unmodelled effect
+biases them: Coulomb friction is absorbed partly by the damping, a dead zone by the leakage) on
+the estimation windows, then scored on the validation windows it has not seen, against the
+baseline fitted on the same estimation windows. To keep that affordable, each effect's size
+grid is first tried on the baseline (screening, :func:`rank`), and only the most promising one
+or two are fitted jointly; a reference model (the baseline, a named extension) is converged
+more tightly than a candidate, so that no candidate gains merely by converging further.
+
+The criterion. ``V_o`` is the validation cost of output o (mean robust loss of its weighted
+residuals; every output is weighted so that the baseline's robust RMS is 1). Residuals along a
+window are correlated (an error accumulates), so the independent units are the validation
+windows, n of them. With a variance of its own for each output, the log-likelihood ratio of
+the extension is ``n sum_o ln(V_o,ext / V_o,ref)`` and the score is the Akaike criterion
+``score = n sum_o ln(V_o,ext / V_o,ref) + 2 k`` for k added parameters: negative when the gain
+pays for the parameters (an effect that shows in one output only, entrained air in the
+pressure, counts fully). An effect is significant when, in addition, the one-sided t-test
+across the windows of the per-window log ratio has p below :data:`ALPHA`, and the validated
+cost (geometric mean over the outputs) falls by at least :data:`MIN_GAIN`: a gain too small to
+matter, which a slightly wrong fixed parameter can produce without any effect, is no
+diagnosis. The held-out windows already penalise an extension that only fits noise: fitted on
+the estimation windows, it predicts the others worse. The named cause is the significant effect
+of lowest score, or ``none``.
+
+Two effects: forward selection. With a cause named, every other effect is fitted on top of the
+extended model (baseline, first effect and the candidate, all refitted) and scored against the
+extended model by the same rules; a significant one is named too.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.stats import t as t_distribution
+
+from exo_has_sim.diagnosis.compare import Span, Windows
+from exo_has_sim.diagnosis.fitting import (
+    Evaluation,
+    Fit,
+    FloatArray,
+    evaluate,
+    fit_parameters,
+    robust_loss,
+)
+from exo_has_sim.diagnosis.plants import Plant
+
+#: Significance level of the t-test across the validation windows.
+ALPHA = 0.01
+#: Smallest relative fall of the validation cost (geometric mean over the outputs) that
+#: counts as a gain.
+MIN_GAIN = 0.05
+#: Effects fitted jointly with the reference's parameters in each step (the best screened).
+JOINT_FITS = 2
+#: Smallest relative fall of the estimation cost at screening that earns a joint fit.
+SCREEN_GAIN = 0.02
+#: Relative cost change at which a reference model's fit stops (the candidates': the fitting
+#: module's default, looser).
+REFERENCE_TOLERANCE = 1e-4
+#: A reference whose baseline parameters strayed beyond this factor of nominal gets a second
+#: start for its joint fits (the parameters a HAS's data determine are +-30 % at most off).
+STRAY_FACTOR = 1.5
+#: Screening tries the grids on one estimation window in this many.
+SCREEN_STRIDE = 2
+#: A runner-up is fitted jointly too only if its screened cost is within this factor of the
+#: best's (a rival explanation, as quadratic leakage is for a cracked relief valve).
+RIVAL_FACTOR = 2.0
+
+Progress = Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class Score:
+    """An extension fitted and scored on the validation windows.
+
+    Attributes
+    ----------
+    effects : tuple[str, ...]
+        Effects of the extension (the ones already named, then the candidate).
+    fit : Fit
+        Joint fit of the baseline's and the effects' parameters.
+    validation : Evaluation
+        Predictions on the validation windows.
+    reference : Evaluation
+        Predictions of the model it extends on the same windows.
+    added : int
+        Parameters added.
+    screened : bool
+        Scored at its best size on the reference held fixed, not fitted jointly.
+
+    """
+
+    effects: tuple[str, ...]
+    fit: Fit
+    validation: Evaluation
+    reference: Evaluation
+    added: int
+    screened: bool = False
+
+    @property
+    def effect(self) -> str:
+        """The candidate effect (the last one added)."""
+        return self.effects[-1]
+
+    @property
+    def windows(self) -> int:
+        """Validation windows, the independent units of the test."""
+        return int(self.validation.residuals.shape[0])
+
+    @property
+    def output_ratios(self) -> FloatArray:
+        """Validation cost of each output over the reference's."""
+        return np.asarray(self.validation.output_costs() / self.reference.output_costs(),
+                          dtype=float)
+
+    @property
+    def log_ratio(self) -> float:
+        """Sum over the outputs of the log of their validation cost ratios."""
+        return float(np.sum(np.log(np.maximum(self.output_ratios, 1e-300))))
+
+    @property
+    def ratio(self) -> float:
+        """Validation cost over the reference's, the geometric mean over the outputs."""
+        return math.exp(self.log_ratio / len(self.output_ratios))
+
+    @property
+    def score(self) -> float:
+        """AIC difference with the windows as samples; negative is better than without.
+
+        Each output has a variance of its own, so the log-likelihood ratio is the sum of the
+        outputs' log cost ratios times the number of windows.
+        """
+        return self.windows * self.log_ratio + 2.0 * self.added
+
+    @property
+    def p_value(self) -> float:
+        """One-sided p of the t-test that the per-window log cost ratio is negative.
+
+        A window's log ratio is summed over the outputs, as the score's.
+        """
+        ratios = np.sum(np.log(np.maximum(self.validation.window_output_costs(), 1e-300)
+                               / np.maximum(self.reference.window_output_costs(), 1e-300)),
+                        axis=1)
+        n = len(ratios)
+        spread = float(np.std(ratios, ddof=1)) if n > 1 else math.inf
+        mean = float(np.mean(ratios))
+        if mean >= 0.0:
+            return 1.0
+        if spread == 0.0:
+            return 0.0
+        return float(t_distribution.cdf(mean / (spread / math.sqrt(n)), n - 1))
+
+    @property
+    def significant(self) -> bool:
+        """Whether the gain is significant by every rule (module docstring)."""
+        return (not self.screened and self.score < 0.0 and self.p_value < ALPHA
+                and self.ratio <= 1.0 - MIN_GAIN)
+
+    @property
+    def fit_percent(self) -> float:
+        """Validated position fit [%]."""
+        return self.validation.fit(0)
+
+
+def _screen(plant: Plant, reference: Fit, effects: Sequence[str], windows: Windows,
+            weights: FloatArray) -> tuple[dict[str, tuple[dict[str, float], float]], float]:
+    """Try each effect's size grid on the reference model (one plant call).
+
+    The reference's own parameters would partly absorb an effect (a quadratic leakage raises
+    the fitted linear one): tried on top of them unchanged, the effect would look useless. So
+    each grid point's residual ``r`` gets the reference's parameters re-fitted to first order
+    with the reference's Jacobian J, ``r - J pinv(J) r`` (variable projection, linearised),
+    and is judged by that projected cost. Screening only chooses what to fit, so it uses one
+    estimation window in :data:`SCREEN_STRIDE`.
+
+    Returns
+    -------
+    tuple
+        Per effect, the best grid point's values (the reference's, moved by the projection,
+        and the effect's) and its projected cost; and the reference's cost on the same
+        windows.
+
+    """
+    estimation = windows.estimation_span
+    keep = np.arange(estimation.count) % SCREEN_STRIDE == 0
+    span = Span(estimation.starts[keep], estimation.horizon, estimation.burn_in)
+    candidates: list[dict[str, float]] = []
+    owners: list[str] = []
+    for effect in effects:
+        added = plant.effect_parameters(effect)
+        others = {p.name: p.start for p in added[1:]}
+        for value in added[0].grid or (added[0].start,):
+            candidates.append(reference.values | others | {added[0].name: value})
+            owners.append(effect)
+    evaluations = evaluate(plant, candidates, span, weights)
+    jacobian, solve = None, None
+    if reference.jacobian is not None and reference.jacobian.size:
+        columns = reference.jacobian.shape[1]
+        jacobian = reference.jacobian.reshape(estimation.count, -1, columns)[keep] \
+            .reshape(-1, columns)
+        solve = np.linalg.pinv(jacobian)
+    if reference.residual is not None:
+        own = reference.residual.reshape(estimation.count, -1)[keep]
+        reference_cost = float(np.mean(robust_loss(own)))
+    else:
+        reference_cost = evaluate(plant, [reference.values], span, weights)[0].cost
+    best: dict[str, tuple[dict[str, float], float]] = {}
+    for effect, values, evaluation in zip(owners, candidates, evaluations, strict=True):
+        r = evaluation.residuals.ravel()
+        values = dict(values)
+        if solve is not None and jacobian is not None and np.all(np.isfinite(r)):
+            step = -solve @ r
+            r = r + jacobian @ step
+            for parameter, z in zip(reference.free, step, strict=True):
+                moved = parameter.from_search(parameter.to_search(values[parameter.name]) + z)
+                values[parameter.name] = min(max(moved, parameter.lower), parameter.upper)
+        cost = float(np.mean(robust_loss(r))) if np.all(np.isfinite(r)) else math.inf
+        if effect not in best or cost < best[effect][1]:
+            best[effect] = (values, cost)
+    return best, reference_cost
+
+
+def _strayed(plant: Plant, reference: Fit) -> bool:
+    """Tell whether a baseline parameter lies beyond :data:`STRAY_FACTOR` of its start."""
+    for parameter in plant.baseline:
+        value = reference.values.get(parameter.name, parameter.start)
+        if parameter.scale is None and not (parameter.start / STRAY_FACTOR <= value
+                                            <= parameter.start * STRAY_FACTOR):
+            return True
+    return False
+
+
+def rank(plant: Plant, reference: Fit, reference_validation: Evaluation, named: Sequence[str],
+         effects: Sequence[str], windows: Windows, weights: FloatArray,
+         progress: Progress | None = None) -> list[Score]:
+    """Score every effect on top of a reference model; best score first.
+
+    Each effect's size grid is tried on the reference held fixed (screening); the
+    :data:`JOINT_FITS` effects whose best grid point lowers the estimation cost most, by at
+    least :data:`SCREEN_GAIN` and to within :data:`RIVAL_FACTOR` of the best, are then fitted
+    jointly with the reference's parameters. The
+    others are scored at their best grid point (``Score.screened``), which can only flatter
+    them less than a joint fit would, and cannot be named.
+    """
+    if progress:
+        progress(f'  trying the size grids of {len(effects)} effects')
+    screened, reference_cost = _screen(plant, reference, effects, windows, weights)
+    order = sorted(effects, key=lambda e: screened[e][1])
+    best = screened[order[0]][1]
+    joint = [e for e in order[:JOINT_FITS]
+             if screened[e][1] <= (1.0 - SCREEN_GAIN) * reference_cost
+             and screened[e][1] <= RIVAL_FACTOR * best]
+    rest = [e for e in effects if e not in joint]
+    validations = evaluate(plant, [screened[e][0] for e in rest], windows.validation_span,
+                           weights) if rest else []
+    ranking = []
+    # A screened effect is scored at its grid point, with the reference's values projected.
+    for effect, validation in zip(rest, validations, strict=True):
+        added = plant.effect_parameters(effect)
+        fit = Fit(screened[effect][0], added, {}, screened[effect][1])
+        ranking.append(Score((*named, effect), fit, validation, reference_validation,
+                             len(added), screened=True))
+    for effect in joint:
+        added = plant.effect_parameters(effect)
+        if progress:
+            progress(f'  fitting {effect} jointly with '
+                     f'{", ".join(p.name for p in reference.free)}')
+        free = (*reference.free, *added)
+        fit = fit_parameters(plant, free, {}, windows.estimation_span, weights,
+                             initial=screened[effect][0])
+        if effect == order[0] and _strayed(plant, reference):
+            # The reference's parameters strayed from nominal to absorb the effect: from
+            # there the joint fit can stall in their valley (a bulk modulus pinned high by a
+            # dead zone), so the likeliest effect's fit also starts from the nominal values,
+            # and the better one wins.
+            sizes = {p.name: screened[effect][0][p.name] for p in added}
+            again = fit_parameters(plant, free, {}, windows.estimation_span, weights,
+                                   initial=reference.values | plant.nominal() | sizes)
+            fit = again if again.cost < fit.cost else fit
+        validation = evaluate(plant, [fit.values], windows.validation_span, weights)[0]
+        ranking.append(Score((*named, effect), fit, validation, reference_validation,
+                             len(added)))
+    ranking.sort(key=lambda s: s.score)
+    if progress:
+        for score in ranking:
+            size = plant.effect_parameters(score.effect)[0].name
+            how = 'grid' if score.screened else 'fit '
+            progress(f'  {" + ".join(score.effects):<38} {how} validated cost '
+                     f'x{score.ratio:.3f} score {score.score:+7.1f} p {score.p_value:.1e} '
+                     f'size {score.fit.values[size]:.4g}')
+    return ranking
+
+
+def forward_selection(plant: Plant, baseline: Fit, baseline_validation: Evaluation,
+                      windows: Windows, weights: FloatArray, effects: Sequence[str],
+                      max_causes: int = 2,
+                      progress: Progress | None = None) -> list[list[Score]]:
+    """Rank the effects, name the best significant one, and repeat on the extended model.
+
+    Returns
+    -------
+    list[list[Score]]
+        One ranking per step (best score first); step k's first entry is the k-th cause when
+        it is significant. The steps end with the first ranking without a significant effect.
+
+    """
+    steps: list[list[Score]] = []
+    reference, reference_validation = baseline, baseline_validation
+    named: list[str] = []
+    remaining = list(effects)
+    while remaining and len(named) < max_causes:
+        if progress:
+            progress(f'step {len(steps) + 1}: each effect on top of '
+                     f'{" + ".join(["baseline", *named])}')
+        ranking = rank(plant, reference, reference_validation, named, remaining, windows,
+                       weights, progress)
+        steps.append(ranking)
+        best = ranking[0]
+        if not best.significant:
+            break
+        # The named model becomes the next step's reference: converge it tightly, or the
+        # next candidates would gain merely by converging further.
+        polished = fit_parameters(plant, best.fit.free, {}, windows.estimation_span, weights,
+                                  initial=best.fit.values, tolerance=REFERENCE_TOLERANCE)
+        if polished.cost <= best.fit.cost:
+            validation = evaluate(plant, [polished.values], windows.validation_span,
+                                  weights)[0]
+            best = replace(best, fit=polished, validation=validation)
+            ranking[0] = best
+        named.append(best.effect)
+        remaining.remove(best.effect)
+        reference, reference_validation = best.fit, best.validation
+    return steps

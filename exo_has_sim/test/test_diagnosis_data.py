@@ -1,0 +1,192 @@
+"""Measured data for the diagnosis: CSV and bag reading, and the errors that name bad input."""
+
+import math
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from exo_has_sim.diagnosis.data import (
+    MIN_SAMPLES,
+    Limits,
+    check_columns,
+    read_bag,
+    read_csv,
+    write_csv,
+)
+from exo_has_sim.errors import MeasurementError
+
+HIP = Limits(stroke=0.13, motor_speed_max=418.9)
+PERIOD = 0.005
+
+
+def columns(samples=400, **extra):
+    t = np.arange(samples) * PERIOD
+    out = {'time': t, 'motor_speed_command': 100.0 * np.sin(2.0 * t),
+           'position': 0.06 + 0.02 * np.sin(t), 'pressure_a': 3e6 + 1e5 * np.cos(t)}
+    out.update(extra)
+    return out
+
+
+def write(path, table, header=None):
+    names = header or list(table)
+    lines = [','.join(names)]
+    for row in zip(*(table[n] for n in names), strict=True):
+        lines.append(','.join('' if isinstance(v, float) and math.isnan(v) else repr(float(v))
+                              for v in row))
+    path.write_text('\n'.join(lines) + '\n', encoding='utf-8')
+    return path
+
+
+def test_a_csv_log_reads_back_as_written(tmp_path):
+    table = columns(load_force=np.full(400, 300.0))
+    m = read_csv(write(tmp_path / 'log.csv', table), limits=HIP)
+    assert m.samples == 400 and m.plant == 'has'
+    assert_allclose(m.period, PERIOD, rtol=1e-12)
+    assert_allclose(m.input, table['motor_speed_command'], rtol=0, atol=0)
+    assert_allclose(m.position, table['position'], rtol=0, atol=0)
+    assert sorted(m.optional) == ['load_force', 'pressure_a']
+    write_csv(m, tmp_path / 'again.csv')
+    again = read_csv(tmp_path / 'again.csv', limits=HIP)
+    assert_allclose(again.position, m.position, rtol=1e-8)
+
+
+def test_missing_columns_are_listed_with_what_was_found(tmp_path):
+    table = columns()
+    del table['motor_speed_command']
+    with pytest.raises(MeasurementError, match=r'missing column motor_speed_command \(required: '
+                       r'time, motor_speed_command, position; found: time, position, '
+                       r'pressure_a\)'):
+        read_csv(write(tmp_path / 'log.csv', table))
+
+
+def test_the_mass_plant_needs_a_force_column():
+    with pytest.raises(MeasurementError, match='missing column force'):
+        check_columns(columns(), 'mass', 'log')
+
+
+def test_a_time_that_does_not_increase_is_named_by_its_row(tmp_path):
+    table = columns()
+    table['time'] = table['time'].copy()
+    table['time'][100] = table['time'][99]
+    # Row 1 is the header, so sample 100 is row 102.
+    with pytest.raises(MeasurementError, match='time does not increase at row 102'):
+        read_csv(write(tmp_path / 'log.csv', table))
+
+
+def test_a_nan_run_is_located_by_rows_and_time(tmp_path):
+    table = columns()
+    table['position'] = table['position'].copy()
+    table['position'][50:54] = np.nan
+    table['position'][300] = np.nan
+    with pytest.raises(MeasurementError, match=r'position is NaN in rows 52 to 55 '
+                       r'\(t = 0.25 s\), 4 samples; 2 NaN runs in all'):
+        read_csv(write(tmp_path / 'log.csv', table), limits=HIP)
+
+
+def test_an_optional_column_nan_throughout_counts_as_not_measured():
+    m = check_columns(columns(load_force=np.full(400, np.nan)), 'has', 'log', HIP)
+    assert 'load_force' not in m.optional
+    assert any('load_force is NaN throughout' in note for note in m.notes)
+
+
+def test_a_position_in_millimetres_is_recognised():
+    table = columns()
+    table['position'] = table['position'] * 1e3
+    with pytest.raises(MeasurementError, match=r'position looks like millimetres \(max 80 > '
+                       r'stroke 0.13 m\)'):
+        check_columns(table, 'has', 'log', HIP)
+
+
+def test_a_motor_speed_in_rpm_is_recognised():
+    table = columns()
+    table['motor_speed_command'] = table['motor_speed_command'] * 60.0 / (2.0 * math.pi) * 20
+    with pytest.raises(MeasurementError, match=r'motor_speed_command looks like r/min'):
+        check_columns(table, 'has', 'log', HIP)
+
+
+def test_a_pressure_in_megapascal_is_recognised():
+    table = columns()
+    table['pressure_a'] = table['pressure_a'] * 1e-6
+    with pytest.raises(MeasurementError, match='pressure_a looks like MPa or bar'):
+        check_columns(table, 'has', 'log', HIP)
+
+
+def test_a_time_in_milliseconds_is_recognised():
+    table = columns()
+    table['time'] = table['time'] * 1e3
+    with pytest.raises(MeasurementError, match='time looks like milliseconds'):
+        check_columns(table, 'has', 'log', HIP)
+
+
+def test_a_value_that_is_not_a_number_is_named_by_row_and_column(tmp_path):
+    path = write(tmp_path / 'log.csv', columns())
+    lines = path.read_text().splitlines()
+    fields = lines[10].split(',')
+    fields[2] = 'oops'
+    lines[10] = ','.join(fields)
+    path.write_text('\n'.join(lines) + '\n')
+    with pytest.raises(MeasurementError, match="row 11, column position: 'oops' is not a number"):
+        read_csv(path)
+
+
+def test_too_short_a_record_is_refused():
+    with pytest.raises(MeasurementError, match=f'at least {MIN_SAMPLES}'):
+        check_columns(columns(samples=MIN_SAMPLES - 1), 'has', 'log')
+
+
+def test_jittery_stamps_are_resampled_and_a_long_gap_is_refused():
+    rng = np.random.default_rng(3)
+    table = columns()
+    table['time'] = table['time'] + rng.uniform(-0.2, 0.2, 400) * PERIOD
+    m = check_columns(table, 'has', 'log', HIP)
+    assert_allclose(np.diff(m.time), PERIOD, rtol=0.01)
+    assert any('resampled' in note for note in m.notes)
+    gap = columns()
+    gap['time'] = np.where(np.arange(400) >= 200, gap['time'] + 0.1, gap['time'])
+    with pytest.raises(MeasurementError, match=r'a gap of 0.105 s \(21.0 sample periods\)'):
+        check_columns(gap, 'has', 'log', HIP)
+
+
+def test_one_joints_topics_are_read_from_a_bag(tmp_path):
+    from exo_has_runtime.bag import BagWriter
+    from exo_has_runtime.standalone.messages import default_registry
+
+    registry = default_registry()
+    command_type = registry.get_message('exo_has_msgs/msg/HasCommand')
+    state_type = registry.get_message('exo_has_msgs/msg/HasState')
+    samples = 300
+    t0 = 1_700_000_000_000_000_000
+    with BagWriter(tmp_path / 'bag') as writer:
+        writer.add_topic('/left_knee/has_state', 'exo_has_msgs/msg/HasState')
+        writer.add_topic('/left_knee/has_command', 'exo_has_msgs/msg/HasCommand')
+        writer.add_topic('/right_hip/has_state', 'exo_has_msgs/msg/HasState')
+        for k in range(samples):
+            stamp = t0 + k * 5_000_000
+            state = state_type(joint='left_knee', position=0.05 + 1e-5 * k, pressure_a=2e6,
+                               motor_speed=3.0, motor_speed_command=0.0,
+                               load_force=math.nan)
+            state.header.stamp.sec, state.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+            writer.write('/left_knee/has_state', stamp, registry.serialize(state))
+            other = state_type(joint='right_hip', position=0.1)
+            other.header.stamp.sec, other.header.stamp.nanosec = state.header.stamp.sec, \
+                state.header.stamp.nanosec
+            writer.write('/right_hip/has_state', stamp, registry.serialize(other))
+            # The controller answers 1 ms after the state, commanding k rad/s.
+            command = command_type(joint='left_knee', motor_speed=1.0 * k, enable=k != 7)
+            answer = stamp + 1_000_000
+            command.header.stamp.sec, command.header.stamp.nanosec = divmod(answer,
+                                                                          1_000_000_000)
+            writer.write('/left_knee/has_command', answer, registry.serialize(command))
+    m = read_bag(tmp_path / 'bag', 'left_knee', HIP)
+    assert m.samples == samples
+    assert_allclose(m.period, 0.005, rtol=1e-9)
+    expected = 1.0 * np.arange(samples)
+    expected[7] = 0.0  # disabled: the motor stops
+    assert_allclose(m.input, expected)
+    assert_allclose(m.position, 0.05 + 1e-5 * np.arange(samples), rtol=1e-12)
+    assert sorted(m.optional) == ['motor_speed', 'pressure_a', 'pressure_b']  # load NaN
+    with pytest.raises(MeasurementError, match='no messages on /left_hip/has_state'):
+        read_bag(tmp_path / 'bag', 'left_hip', HIP)
+    with pytest.raises(MeasurementError, match='unknown joint'):
+        read_bag(tmp_path / 'bag', 'elbow', HIP)

@@ -1,0 +1,166 @@
+"""The plants of the diagnosis, the fits and the selection of effects, on known data."""
+
+import math
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from exo_has_sim import model
+from exo_has_sim.diagnosis.compare import Span, make_windows
+from exo_has_sim.diagnosis.data import Limits, check_columns
+from exo_has_sim.diagnosis.diagnose import diagnose
+from exo_has_sim.diagnosis.fitting import evaluate, fit_parameters, output_weights
+from exo_has_sim.diagnosis.plants import HasPlant, MassPlant, Parameter, _mass_windows
+from exo_has_sim.errors import DiagnosisError
+from exo_has_sim.parameters import load_parameters
+from exo_has_sim.simulate import simulate_closed_loop
+
+PERIOD = 0.005
+
+
+def mass_measurement(force, position):
+    t = np.arange(len(force)) * PERIOD
+    return check_columns({'time': t, 'force': force, 'position': position}, 'mass', 'test')
+
+
+def simulate_mass(force, mass, damping, offset=0.0, coulomb=0.0, delay=0.0):
+    """Positions from rest at 0 by the plant's own integrator, in one window."""
+    prm = np.array([[mass, damping, offset, coulomb, delay, 0.0]])
+    cumulative = np.concatenate(([0.0], np.cumsum(force)[:-1])) * PERIOD
+    out = np.empty((1, 1, len(force) - 1))
+    _mass_windows(prm, cumulative, np.asarray(force, float), np.array([0]), np.zeros((1, 1)),
+                  np.zeros((1, 1)), len(force) - 1, PERIOD, 20, out)
+    return np.concatenate(([0.0], out[0, 0]))
+
+
+def test_a_constant_force_moves_the_mass_plant_as_the_analytic_solution():
+    mass, damping, force = 40.0, 120.0, 30.0
+    t = np.arange(600) * PERIOD
+    tau = mass / damping
+    exact = force / damping * (t - tau * (1.0 - np.exp(-t / tau)))
+    plant = MassPlant(mass_measurement(np.full(600, force), exact), mass)
+    predicted = plant.simulate([{'mass': mass, 'viscous_friction': damping, 'offset': 0.0}],
+                               np.array([plant.first_start]), 400)
+    start = plant.first_start
+    assert_allclose(predicted[0, 0, :, 0], exact[start + 1:start + 401], rtol=2e-3)
+
+
+def test_a_force_within_the_coulomb_level_does_not_move_a_mass_at_rest():
+    force = np.full(400, 15.0)
+    positions = simulate_mass(force, 10.0, 50.0, coulomb=20.0)
+    assert_allclose(positions, 0.0, atol=0.0)
+    moving = simulate_mass(force, 10.0, 50.0, coulomb=10.0)
+    # Net 5 N against 50 N s/m: 0.1 m/s once the transient has gone.
+    assert_allclose(np.diff(moving[-50:]) / PERIOD, 0.1, rtol=1e-3)
+
+
+def test_a_delay_of_whole_periods_shifts_the_response():
+    rng = np.random.default_rng(0)
+    force = np.repeat(rng.normal(0.0, 20.0, 60), 10)
+    force[:10] = 0.0  # before the record the plant holds the first input
+    delayed = simulate_mass(force, 5.0, 30.0, delay=3 * PERIOD)
+    shifted = simulate_mass(np.concatenate((np.zeros(3), force[:-3])), 5.0, 30.0)
+    assert_allclose(delayed, shifted, atol=1e-12)
+
+
+def test_a_parameter_outside_its_bounds_is_refused():
+    with pytest.raises(DiagnosisError, match='must lie within its bounds'):
+        Parameter('x', 'N', 5.0, 1.0, 2.0, 'bad start')
+    with pytest.raises(DiagnosisError, match='positive for a log-scale search'):
+        Parameter('x', 'N', 0.0, -1.0, 2.0, 'log scale through zero')
+    linear = Parameter('offset', 'N', -2.0, -10.0, 10.0, 'either sign', scale=0.5)
+    assert linear.from_search(linear.to_search(3.0)) == pytest.approx(3.0)
+
+
+def random_force(samples, seed, level=60.0):
+    """Return a sum of sines, 0.2 to 5 Hz, random phases (the paper's Fig. 13 excitation)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(samples) * PERIOD
+    freqs = np.geomspace(0.2, 5.0, 8)
+    phases = rng.uniform(0.0, 2.0 * math.pi, 8)
+    return level * np.sin(np.outer(t, 2.0 * math.pi * freqs) + phases).sum(axis=1) / 3.0
+
+
+def test_the_fit_of_a_mass_recovers_its_parameters_within_their_intervals():
+    force = random_force(4000, 1)
+    truth = {'mass': 12.0, 'viscous_friction': 80.0, 'offset': 4.0}
+    rng = np.random.default_rng(2)
+    position = simulate_mass(force, 12.0, 80.0, offset=4.0) + rng.normal(0.0, 2e-5, 4000)
+    plant = MassPlant(mass_measurement(force, position), mass=20.0)
+    windows = make_windows(4000, 100, plant.first_start, 20)
+    weights = output_weights(plant)
+    fit = fit_parameters(plant, plant.baseline, {}, windows.estimation_span, weights)
+    for name, value in truth.items():
+        low, high = fit.interval[name]
+        assert low < value < high, (name, low, value, high)
+        assert_allclose(fit.values[name], value, rtol=0.05)
+    validation = evaluate(plant, [fit.values], windows.validation_span, weights)[0]
+    assert validation.fit(0) > 99.0
+
+
+def test_coulomb_friction_in_mass_data_is_named_and_none_without_it():
+    force = random_force(4000, 3)
+    rng = np.random.default_rng(4)
+    noise = rng.normal(0.0, 2e-5, 4000)
+    with_friction = simulate_mass(force, 12.0, 80.0, coulomb=15.0) + noise
+    result = diagnose(MassPlant(mass_measurement(force, with_friction), mass=20.0))
+    assert result.causes == ('coulomb_friction',)
+    low, high = result.extended.interval['coulomb_friction']
+    assert low < 15.0 < high
+    assert_allclose(result.sizes()['coulomb_friction'], 15.0, rtol=0.1)
+    assert result.fits()['extended']['position'] > result.fits()['baseline']['position']
+    clean = simulate_mass(force, 12.0, 80.0) + noise
+    assert diagnose(MassPlant(mass_measurement(force, clean), mass=20.0)).cause == 'none'
+
+
+def has_closed_loop(params, seconds=8.0, seed=0):
+    """Noise-free closed-loop data of the project's own HAS model (sine sum, varying load)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(round(seconds / PERIOD)) * PERIOD
+    freqs = np.geomspace(0.3, 4.0, 6)
+    phases = rng.uniform(0.0, 2.0 * math.pi, 6)
+    ramp = np.clip(t, 0.0, 1.0) ** 2
+    x_ref = params.stroke / 2 + ramp * (np.sin(np.outer(t, 2 * math.pi * freqs) + phases)
+                                        @ np.minimum(8e-3, 15e-3 / (2 * math.pi * freqs)))
+    load = params.area_a * (2e6 + 8e6 * 0.5 * (1.0 - np.cos(2 * math.pi * 0.15 * t)))
+    y0 = model.initial_state(params, x_ref[0], load[0])
+    gains = np.array([[35e3, 15.0, params.flow_area / params.pump_displacement]])
+    run = simulate_closed_loop([params], y0[None], x_ref[:, None], np.gradient(x_ref, PERIOD)
+                               [:, None], load, gains, PERIOD, rtol=1e-4)
+    return {'time': t, 'motor_speed_command': run.commands[:, 0],
+            'position': run.position[:-1, 0], 'pressure_a': run.pressure[:-1, 0],
+            'motor_speed': run.states[:-1, 0, model.N], 'load_force': load}
+
+
+def test_the_has_windows_reproduce_the_project_model_s_own_data():
+    hip = load_parameters('hip')
+    truth = hip.replace(bulk_modulus=1.2e9, pump_leakage=2e-13, damping=1800.0)
+    measurement = check_columns(has_closed_loop(truth), 'has', 'own model',
+                                Limits(hip.stroke, hip.motor_speed_max))
+    plant = HasPlant(measurement, hip)
+    assert plant.outputs == ('position', 'pressure_a', 'motor_speed')
+    span = make_windows(measurement.samples, 100, plant.first_start, 20).span
+    values = {'bulk_modulus': 1.2e9, 'pump_leakage': 2e-13, 'damping': 1800.0}
+    own = evaluate(plant, [values, {}], span, output_weights(plant))
+    # The simulator's absolute tolerances (0.1 rad/s, 10 kPa) bound the agreement.
+    assert own[0].fit(0) > 99.9 and own[0].fit(1) > 99.0 and own[0].fit(2) > 99.5
+    assert own[1].fit(0) < own[0].fit(0)  # the nominal parameters fit worse
+    with pytest.raises(DiagnosisError, match='outside the record'):
+        plant.simulate([values], np.array([0]), 10)
+
+
+def test_a_transport_delay_in_the_project_model_s_data_is_named_with_its_size():
+    hip = load_parameters('hip')
+    truth = hip.replace(bulk_modulus=0.9e9, damping=1300.0).with_effects(transport_delay=0.008)
+    rng = np.random.default_rng(7)
+    columns = has_closed_loop(truth, seconds=12.0, seed=1)
+    columns['position'] = columns['position'] + rng.normal(0.0, 1e-5, len(columns['time']))
+    columns['pressure_a'] = columns['pressure_a'] + rng.normal(0.0, 2e4, len(columns['time']))
+    plant = HasPlant(check_columns(columns, 'has', 'own model'), hip)
+    result = diagnose(plant, effects=('transport_delay', 'coulomb_friction'), max_causes=1)
+    assert result.cause == 'transport_delay'
+    low, high = result.extended.interval['transport_delay']
+    assert low < 0.008 < high
+    assert_allclose(result.sizes()['transport_delay'], 0.008, rtol=0.05)
+    assert isinstance(result.windows.span, Span)
