@@ -73,6 +73,7 @@ from exo_has_runtime.errors import (
     UnfinishedBagError,
     UnknownMessageTypeError,
 )
+from exo_has_runtime.recording import OfferedProfile
 
 #: The bytes an MCAP file starts and ends with.
 MCAP_MAGIC = b'\x89MCAP0\r\n'
@@ -234,20 +235,8 @@ class _DurationLike(Protocol):
     def nanoseconds(self) -> int: ...
 
 
-class QosProfileLike(Protocol):
+class QosProfileLike(OfferedProfile, Protocol):
     """What :func:`offered_qos` reads of an rclpy (or standalone) ``QoSProfile``."""
-
-    @property
-    def history(self) -> int: ...  # noqa: D102
-
-    @property
-    def depth(self) -> int: ...  # noqa: D102
-
-    @property
-    def reliability(self) -> int: ...  # noqa: D102
-
-    @property
-    def durability(self) -> int: ...  # noqa: D102
 
     @property
     def deadline(self) -> _DurationLike: ...  # noqa: D102

@@ -354,14 +354,52 @@ def simulate_open_loop(params: Sequence[HasParameters], y0: np.ndarray, n_cmd: n
     if loads.shape[0] != commands.shape[0]:
         raise SimulationError('n_cmd and f_load must have the same number of samples')
     _check_steps(period, max_step, rtol)
-    states = np.empty((commands.shape[0] + 1, joints, model.N_STATE))
     delay = np.array([p.effects.transport_delay for p in params])
-    _open_loop(np.ascontiguousarray(y0, dtype=float), _packed(params), commands, loads, period,
-               delay, _ATOL, rtol, max_step, states)
-    if not np.all(np.isfinite(states)):
-        raise SimulationError('the simulation diverged (NaN or infinite state)')
+    states = integrate_packed(_packed(params), delay, y0, commands, loads, period,
+                              max_step=max_step, rtol=rtol)
     time = np.arange(commands.shape[0] + 1) * period
     return SimulationResult(time, states, commands)
+
+
+def integrate_packed(packed: np.ndarray, delay: np.ndarray, y0: np.ndarray,
+                     n_cmd: np.ndarray, f_load: np.ndarray, period: float,
+                     max_step: float = DEFAULT_STEP, rtol: float = DEFAULT_RTOL,
+                     atol: np.ndarray | None = None) -> np.ndarray:
+    """Integrate N joints open loop from packed parameters; the core of simulate_open_loop.
+
+    For callers that build many parameter sets at once (the diagnosis's candidates): no
+    per-joint :class:`HasParameters` and no checks of the inputs' shapes.
+
+    Parameters
+    ----------
+    packed : np.ndarray
+        One :func:`exo_has_sim.model.pack` row per joint, shape (N, N_PACKED).
+    delay : np.ndarray
+        Transport delay of each joint [s], shape (N,).
+    y0, n_cmd, f_load, period, max_step, rtol
+        As :func:`simulate_open_loop` (n_cmd and f_load of shape (K, N)).
+    atol : np.ndarray or None
+        Absolute tolerance of each dynamic state (length N_DYNAMIC); None: the default.
+
+    Returns
+    -------
+    np.ndarray
+        States, shape (K + 1, N, N_STATE).
+
+    Raises
+    ------
+    SimulationError
+        If a joint diverged.
+
+    """
+    states = np.empty((n_cmd.shape[0] + 1, packed.shape[0], model.N_STATE))
+    _open_loop(np.ascontiguousarray(y0, dtype=float), np.ascontiguousarray(packed),
+               np.ascontiguousarray(n_cmd), np.ascontiguousarray(f_load), period,
+               np.ascontiguousarray(delay, dtype=float), _ATOL if atol is None else atol, rtol,
+               max_step, states)
+    if not np.all(np.isfinite(states)):
+        raise SimulationError('the simulation diverged (NaN or infinite state)')
+    return states
 
 
 def simulate_closed_loop(params: Sequence[HasParameters], y0: np.ndarray, x_ref: np.ndarray,

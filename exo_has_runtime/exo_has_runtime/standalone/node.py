@@ -153,26 +153,30 @@ class Subscription:
 
     def take(self) -> list[Any]:
         """Take every waiting message (CDR bytes when raw), oldest first."""
-        return [message for message, _ in self.take_with_info()]
+        return [message for message, _ in self._take()]
 
     def take_with_info(self) -> list[tuple[Any, dict[str, Any]]]:
         """Take every waiting message with its MessageInfo dictionary, oldest first."""
-        result: list[tuple[Any, dict[str, Any]]] = []
+        received = time.time_ns()
+        return [(message, {'source_timestamp': info.source_timestamp,
+                           'received_timestamp': received,
+                           'publication_sequence_number': None,
+                           'reception_sequence_number': None})
+                for message, info in self._take()]
+
+    def _take(self) -> list[tuple[Any, Any]]:
+        """Take every waiting sample with valid data: (message, DDS sample info)."""
+        result: list[tuple[Any, Any]] = []
         while True:
             taken = ddspy_take(self._reader._ref, _NEW_SAMPLES, _TAKE_BATCH)
             if isinstance(taken, int):
                 raise RuntimeSeamError(f'taking from {self.topic_name} failed ({taken})')
-            received = time.time_ns()
             for data, info in taken:
                 if not info.valid_data:
                     continue
                 message = data if self.raw else self._deserialize(data)
                 if message is not None:
-                    result.append((message, {
-                        'source_timestamp': info.source_timestamp,
-                        'received_timestamp': received,
-                        'publication_sequence_number': None,
-                        'reception_sequence_number': None}))
+                    result.append((message, info))
             if len(taken) < _TAKE_BATCH:
                 return result
 

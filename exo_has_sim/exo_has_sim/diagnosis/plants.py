@@ -43,7 +43,7 @@ from scipy.signal import lfilter, savgol_filter
 from exo_has_sim import model, simulate
 from exo_has_sim.diagnosis.compare import Span
 from exo_has_sim.diagnosis.data import Measurement
-from exo_has_sim.errors import DiagnosisError, SimulationError
+from exo_has_sim.errors import DiagnosisError
 from exo_has_sim.parameters import Effects, HasParameters
 
 FloatArray = NDArray[np.float64]
@@ -451,9 +451,8 @@ def _integrate(packed: FloatArray, delay: FloatArray, y0: FloatArray, commands: 
                loads: FloatArray, period: float) -> FloatArray:
     """Integrate N joints open loop at :data:`HAS_ATOL`, :data:`HAS_RTOL`.
 
-    :func:`exo_has_sim.simulate.simulate_open_loop` without its fixed absolute tolerances
-    (the same compiled integrator, called with the diagnosis's own); ``packed`` holds each
-    joint's :func:`exo_has_sim.model.pack` row and ``delay`` its transport delay [s].
+    ``packed`` holds each joint's :func:`exo_has_sim.model.pack` row and ``delay`` its
+    transport delay [s] (see :func:`exo_has_sim.simulate.integrate_packed`).
 
     Raises
     ------
@@ -461,14 +460,8 @@ def _integrate(packed: FloatArray, delay: FloatArray, y0: FloatArray, commands: 
         If a joint diverged.
 
     """
-    states = np.empty((commands.shape[0] + 1, packed.shape[0], model.N_STATE))
-    simulate._open_loop(np.ascontiguousarray(y0), np.ascontiguousarray(packed),
-                        np.ascontiguousarray(commands), np.ascontiguousarray(loads), period,
-                        np.ascontiguousarray(delay, dtype=float), HAS_ATOL, HAS_RTOL,
-                        simulate.DEFAULT_STEP, states)
-    if not np.all(np.isfinite(states)):
-        raise SimulationError('the simulation diverged (NaN or infinite state)')
-    return states
+    return simulate.integrate_packed(packed, delay, y0, commands, loads, period,
+                                     rtol=HAS_RTOL, atol=HAS_ATOL)
 
 
 def _first_order(values: FloatArray, period: float, time_constant: float) -> FloatArray:
