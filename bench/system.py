@@ -7,8 +7,11 @@ of ``--duration`` seconds. CPU shares come from /proc/<pid>/stat over the middle
 (utime + stime, as a percentage of one core). The latency of a command is the time from the
 stamp of the newest reference the controller had (the newest reference stamped before the
 command) to the stamp of the first plant state that carries the command: reference age plus
-the wait for the plant's next period. Missed periods are the plants' own counts (a period
-whose tick came later than one period after the one before).
+the wait for the plant's next period; commands superseded before a plant's tick are counted
+apart. Missed periods are the plants' own counts (exo_has_runtime.timing: a release that passed
+with no tick, what rclcpp's timers count as skipped), with the ticks late by over half a period
+and the lateness percentiles of the worst plant. An idle node ticking at the same rate next to
+the session (bench/probe.py) gives the machine's own floor at that moment.
 
 Run: ``.venv/bin/python bench/system.py [--duration 30] [--rates 200 1000]``.
 """
@@ -21,6 +24,8 @@ import os
 import platform
 import random
 import re
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -45,22 +50,70 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / TICK
 
 
-def latencies(bag: Path) -> np.ndarray:
-    """Reference-to-state latency of every command [s] (see the module docstring)."""
+def latencies(bag: Path) -> tuple[np.ndarray, np.ndarray, int]:
+    """Latencies of the commands the plants applied, and how many were never applied.
+
+    Each state carries the command in force (``motor_speed_command``): the newest command with
+    that speed stamped before the state. A command shows in the first state that carries it;
+    one superseded before a plant's tick never shows and is counted apart.
+
+    Returns
+    -------
+    reference_to_state : ndarray
+        From the stamp of the newest reference before each applied command to the stamp of
+        the first state carrying it [s].
+    command_to_state : ndarray
+        From each applied command's stamp to that state [s].
+    superseded : int
+        Commands never applied.
+
+    """
     data = read_session(bag)
-    result = []
+    reference_to_state: list[float] = []
+    command_to_state: list[float] = []
+    commanded = 0
+    last_reference = data.reference_t[-1]
     for joint in JOINT_NAMES:
         commands, states = data.commands[joint], data.states[joint]
-        index = {}
-        for t, command in zip(states['t'], states['motor_speed_command'], strict=True):
-            index.setdefault(float(command), []).append(float(t))
-        for t_c, speed, enable in zip(commands['t'], commands['motor_speed'],
-                                      commands['enable'], strict=True):
-            k = np.searchsorted(data.reference_t, t_c, side='right') - 1
-            applied = [t for t in index.get(float(speed), []) if t >= t_c]
-            if k >= 0 and applied and enable:
-                result.append(min(applied) - data.reference_t[k])
-    return np.asarray(result)
+        t_c = np.asarray(commands['t'])
+        speed = np.asarray(commands['motor_speed'])
+        enable = np.asarray(commands['enable'], dtype=bool)
+        commanded += int((enable & (t_c <= last_reference)).sum())
+        previous = -1
+        for t_s, applied in zip(states['t'], states['motor_speed_command'], strict=True):
+            newest = int(np.searchsorted(t_c, t_s, side='right')) - 1
+            # Look back a few commands only: a match further back is a repeated value.
+            match = next((j for j in range(newest, max(newest - 8, -1), -1)
+                          if speed[j] == applied), -1)
+            if match <= previous or t_c[match] > last_reference:
+                continue  # already counted; or past the trial, with no fresh reference
+            previous = match
+            k = int(np.searchsorted(data.reference_t, t_c[match], side='right')) - 1
+            if k >= 0 and enable[match]:
+                reference_to_state.append(t_s - data.reference_t[k])
+                command_to_state.append(t_s - t_c[match])
+    return (np.asarray(reference_to_state), np.asarray(command_to_state),
+            commanded - len(command_to_state))
+
+
+def _percentiles(values: np.ndarray) -> dict[str, float | int | None]:
+    if not values.size:
+        return {'p50': None, 'p99': None, 'max': None, 'samples': 0}
+    return {'p50': round(float(np.median(values)) * 1e3, 2),
+            'p99': round(float(np.percentile(values, 99)) * 1e3, 2),
+            'max': round(float(values.max()) * 1e3, 2), 'samples': int(values.size)}
+
+
+TIMING = re.compile(r'(\d+) periods, (\d+) missed, (\d+) late by over half a period, '
+                    r'lateness p99 ([\d.]+) ms p99\.9 ([\d.]+) ms max ([\d.]+) ms')
+
+
+def timing(output: str) -> dict[str, float]:
+    """Parse the timing summary a plant or the probe printed at its end."""
+    match = TIMING.search(output)
+    assert match, output
+    keys = ('periods', 'missed', 'late', 'p99_ms', 'p99_9_ms', 'max_ms')
+    return {key: float(value) for key, value in zip(keys, match.groups(), strict=True)}
 
 
 def run(rate: float, duration: float, folder: Path) -> dict[str, object]:
@@ -68,6 +121,11 @@ def run(rate: float, duration: float, folder: Path) -> dict[str, object]:
     config = SessionConfig(('walk',), (duration,), rate)
     session = Session(config, folder)
     session.start(show=lambda line: None)
+    assert session.started_at is not None
+    probe = subprocess.Popen(
+        [sys.executable, str(Path(__file__).with_name('probe.py')), '--rate', f'{rate:g}',
+         '--duration', f'{session.started_at - time.monotonic() + duration:.2f}'],
+        stdout=subprocess.PIPE, text=True)
     try:
         assert session.started_at is not None
         time.sleep(max(0.0, session.started_at - time.monotonic()) + duration * 0.2)
@@ -79,20 +137,16 @@ def run(rate: float, duration: float, folder: Path) -> dict[str, object]:
         time.sleep(max(0.0, session.started_at + duration + 0.5 - time.monotonic()))
     finally:
         session.stop()
+        probe_output = probe.communicate(timeout=60.0)[0]
     shares = {name: 100.0 * (after[name] - before[name]) / span for name in before}
-    periods = missed = 0
-    for joint in JOINT_NAMES:
-        match = re.search(r'(\d+) periods, (\d+) missed', session.output(f'{joint}_plant'))
-        assert match, session.output(f'{joint}_plant')
-        periods += int(match.group(1))
-        missed += int(match.group(2))
+    plants = [timing(session.output(f'{joint}_plant')) for joint in JOINT_NAMES]
+    periods = int(sum(p['periods'] for p in plants))
+    missed = int(sum(p['missed'] for p in plants))
+    late = int(sum(p['late'] for p in plants))
+    floor = timing(probe_output)
     assert session.bag is not None
-    lat = latencies(session.bag)
+    reference_to_state, command_to_state, superseded = latencies(session.bag)
     fatal = sum(1 for e in read_session(session.bag).events if e.severity >= 3)
-    figures = ({'p50': round(float(np.median(lat)) * 1e3, 2),
-                'p99': round(float(np.percentile(lat, 99)) * 1e3, 2),
-                'max': round(float(lat.max()) * 1e3, 2), 'samples': int(lat.size)}
-               if lat.size else {'p50': None, 'p99': None, 'max': None, 'samples': 0})
     return {
         'fatal_events': fatal,
         'rate_hz': rate, 'duration_s': duration,
@@ -100,7 +154,14 @@ def run(rate: float, duration: float, folder: Path) -> dict[str, object]:
         'cpu_percent_total': round(sum(shares.values()), 1),
         'plant_periods': periods, 'plant_missed_periods': missed,
         'missed_percent': round(100.0 * missed / max(periods, 1), 3),
-        'latency_ms': figures,
+        'plant_late_periods': late, 'late_percent': round(100.0 * late / max(periods, 1), 3),
+        'plant_lateness_ms': {key: max(p[key] for p in plants)
+                              for key in ('p99_ms', 'p99_9_ms', 'max_ms')},
+        'probe': {**floor, 'missed_percent': round(100.0 * floor['missed'] / floor['periods'], 3),
+                  'late_percent': round(100.0 * floor['late'] / floor['periods'], 3)},
+        'latency_ms': {'reference_to_state': _percentiles(reference_to_state),
+                       'command_to_state': _percentiles(command_to_state),
+                       'superseded_commands': superseded},
     }
 
 
@@ -109,24 +170,47 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--duration', type=float, default=30.0)
     parser.add_argument('--rates', type=float, nargs='+', default=[200.0, 1000.0])
+    parser.add_argument('--repeats', type=int, default=1,
+                        help='sessions per rate, the rates taking turns; medians are reported')
     args = parser.parse_args()
     results = []
     with tempfile.TemporaryDirectory() as scratch:
-        for rate in args.rates:
-            results.append(run(rate, args.duration, Path(scratch) / f'rate_{rate:g}'))
-            print(json.dumps(results[-1], indent=1), flush=True)
+        for repeat in range(args.repeats):
+            for rate in args.rates:
+                folder = Path(scratch) / f'rate_{rate:g}_{repeat}'
+                results.append(run(rate, args.duration, folder))
+                print(json.dumps(results[-1], indent=1), flush=True)
+    medians = {}
+    for rate in args.rates:
+        runs = [r for r in results if r['rate_hz'] == rate]
+        medians[f'{rate:g}'] = {
+            key: float(np.median([r[key] for r in runs]))
+            for key in ('cpu_percent_total', 'missed_percent', 'late_percent')}
+        medians[f'{rate:g}']['probe_missed_percent'] = float(
+            np.median([r['probe']['missed_percent'] for r in runs]))
     machine = {'cpus': os.cpu_count(), 'machine': platform.machine(),
                'python': platform.python_version(), 'kernel': platform.release()}
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / 'system.json').write_text(json.dumps({'machine': machine, 'runs': results},
-                                                    indent=1) + '\n')
-    lines = [f'bench/system.py --duration {args.duration:g}: {machine}']
+    (RESULTS / 'system.json').write_text(json.dumps(
+        {'machine': machine, 'medians': medians, 'runs': results}, indent=1) + '\n')
+    lines = [f'bench/system.py --duration {args.duration:g} --repeats {args.repeats}: {machine}']
+    for rate, median in medians.items():
+        lines.append(f'{rate} Hz, median of {args.repeats}: total CPU '
+                     f"{median['cpu_percent_total']:.1f} % of one core, missed "
+                     f"{median['missed_percent']:.3f} %, late {median['late_percent']:.3f} %, "
+                     f"idle probe missed {median['probe_missed_percent']:.3f} %")
     for r in results:
-        lines.append(f"{r['rate_hz']:g} Hz: total CPU {r['cpu_percent_total']} % of one core, "
-                     f"missed {r['plant_missed_periods']}/{r['plant_periods']} "
-                     f"({r['missed_percent']} %), latency p50 {r['latency_ms']['p50']} ms "
-                     f"p99 {r['latency_ms']['p99']} ms, fatal events {r['fatal_events']}; "
-                     f"per node {r['cpu_percent_of_one_core']}")
+        ref, cmd = r['latency_ms']['reference_to_state'], r['latency_ms']['command_to_state']
+        lines.append(
+            f"{r['rate_hz']:g} Hz: total CPU {r['cpu_percent_total']} % of one core; plants "
+            f"missed {r['plant_missed_periods']}/{r['plant_periods']} ({r['missed_percent']} %), "
+            f"late by over half a period {r['plant_late_periods']} ({r['late_percent']} %), "
+            f"lateness of the worst plant {r['plant_lateness_ms']}; idle probe missed "
+            f"{r['probe']['missed_percent']} %, late {r['probe']['late_percent']} %, max "
+            f"{r['probe']['max_ms']} ms; latency reference-to-state p50 {ref['p50']} ms p99 "
+            f"{ref['p99']} ms, command-to-state p50 {cmd['p50']} ms p99 {cmd['p99']} ms, "
+            f"{r['latency_ms']['superseded_commands']} commands superseded; fatal events "
+            f"{r['fatal_events']}; per node {r['cpu_percent_of_one_core']}")
     (RESULTS / 'system.txt').write_text('\n'.join(lines) + '\n')
     print('\n'.join(lines))
 

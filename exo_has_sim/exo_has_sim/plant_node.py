@@ -25,6 +25,7 @@ from exo_has_runtime import (
     spin_paced,
     try_shutdown,
 )
+from exo_has_runtime.timing import PeriodMonitor
 from exo_has_runtime.topics import (
     JOINT_NAMES,
     check_joint,
@@ -83,8 +84,7 @@ class PlantNode(Node):
                                  qos_profile_sensor_data)
         self.create_subscription(Float64, load_force_topic(self.joint), self._on_load, 10)
         self._last_ns: int | None = None
-        self._ticks = 0
-        self._missed = 0
+        self._timing = PeriodMonitor(round(self._period * 1e9))
         self.create_timer(self._period, self._on_tick)
         self.get_logger().info(
             f'{self.joint} plant ready ({self._plant.params.joint_type} parameters from '
@@ -105,14 +105,13 @@ class PlantNode(Node):
     def _on_tick(self) -> None:
         now = self.get_clock().now()
         now_ns = now.nanoseconds
+        self._timing.tick(now_ns)
         if self._last_ns is None or now_ns <= self._last_ns:
             # First tick, or simulated time has not advanced: nothing to integrate yet.
             self._last_ns = now_ns if self._last_ns is None else self._last_ns
             return
         elapsed = (now_ns - self._last_ns) * 1e-9
         self._last_ns = now_ns
-        self._ticks += 1
-        self._missed += max(0, round(elapsed / self._period) - 1)
         sample = self._plant.advance(elapsed)
         state = HasState(joint=self.joint, position=sample.position, velocity=sample.velocity,
                          pressure_a=sample.pressure_a, pressure_b=sample.pressure_b,
@@ -125,8 +124,7 @@ class PlantNode(Node):
 
     def destroy_node(self) -> None:
         """Log the timing summary, then destroy the node."""
-        self.get_logger().info(f'{self.joint} plant: {self._ticks} periods, '
-                               f'{self._missed} missed')
+        self.get_logger().info(f'{self.joint} plant: {self._timing.summary()}')
         super().destroy_node()
 
 

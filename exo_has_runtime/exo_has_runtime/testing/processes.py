@@ -33,11 +33,15 @@ class NodeProcess:
         Extra environment variables.
     log_path : Path or None
         File for the output; a new temporary file by default.
+    stdin : bool
+        Whether to keep a pipe to the process's standard input for :meth:`send` (a simulated
+        device's fault injection, say); otherwise it reads /dev/null.
 
     """
 
     def __init__(self, module: str, args: Sequence[str] = (),
-                 env: Mapping[str, str] | None = None, log_path: Path | None = None) -> None:
+                 env: Mapping[str, str] | None = None, log_path: Path | None = None,
+                 stdin: bool = False) -> None:
         self.module = module
         # Kept open while the process runs; closed by stop().
         self._log: IO[bytes]
@@ -49,7 +53,8 @@ class NodeProcess:
         self.log_path = Path(self._log.name)
         self.process = subprocess.Popen(
             [sys.executable, '-u', '-m', module, *args], stdout=self._log,
-            stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+            stderr=subprocess.STDOUT, stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,
+            text=stdin,
             env={**os.environ, **(env or {})},
             # -m puts the working directory first on sys.path; in a workspace root the package
             # folders would shadow the installed packages, so run from a neutral folder.
@@ -89,6 +94,25 @@ class NodeProcess:
                 raise TimeoutError(msg)
             time.sleep(0.02)
 
+    def send(self, line: str) -> None:
+        """Write a line to the process's standard input.
+
+        Raises
+        ------
+        RuntimeError
+            If the process was started without ``stdin``, or has ended.
+
+        """
+        pipe = self.process.stdin
+        if pipe is None:
+            msg = f'{self.module} was started without a pipe to its standard input'
+            raise RuntimeError(msg)
+        if self.process.poll() is not None:
+            msg = f'{self.module} has ended (exit code {self.process.returncode}): cannot send'
+            raise RuntimeError(msg)
+        pipe.write(line.rstrip('\n') + '\n')
+        pipe.flush()
+
     def wait(self, timeout_s: float = 10.0) -> int:
         """Wait for the process to end on its own and return its exit code."""
         return self.process.wait(timeout=timeout_s)
@@ -104,6 +128,8 @@ class NodeProcess:
             except subprocess.TimeoutExpired:
                 continue
         self._log.close()
+        if self.process.stdin is not None:
+            self.process.stdin.close()
         return self.process.wait()
 
     def kill(self) -> None:

@@ -1,0 +1,30 @@
+"""Tests of exo_has_runtime.testing.processes: modules run as processes for tests."""
+
+from __future__ import annotations
+
+import pytest
+
+from exo_has_runtime.testing.processes import NodeProcess
+
+
+def test_a_process_started_with_stdin_reads_the_lines_sent_to_it(tmp_path) -> None:
+    # json.tool echoes what it reads once its input closes: proof the line got through.
+    with NodeProcess('json.tool', log_path=tmp_path / 'echo.log', stdin=True) as process:
+        process.send('{"answer": 42}')
+        assert process.process.stdin is not None
+        process.process.stdin.close()
+        assert process.wait() == 0
+        assert '"answer": 42' in process.output
+
+
+def test_sending_without_a_pipe_or_after_the_end_names_the_problem(tmp_path) -> None:
+    with NodeProcess('json.tool', log_path=tmp_path / 'none.log') as process:
+        with pytest.raises(RuntimeError, match='without a pipe'):
+            process.send('{}')
+        process.wait()
+    with NodeProcess('json.tool', log_path=tmp_path / 'ended.log', stdin=True) as process:
+        assert process.process.stdin is not None
+        process.process.stdin.close()
+        process.wait()
+        with pytest.raises(RuntimeError, match='has ended'):
+            process.send('{}')
