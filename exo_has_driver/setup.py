@@ -12,6 +12,7 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*.yaml')),
+        ('share/' + package_name + '/config/canopen', glob('config/canopen/*')),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
@@ -26,6 +27,8 @@ setup(
     entry_points={
         'console_scripts': [
             'watchdog = exo_has_driver.watchdog:main',
+            'driver = exo_has_driver.driver_node:main',
+            'can_devices = exo_has_driver.devices.main:main',
         ],
     },
 )

@@ -1,0 +1,347 @@
+"""Hardware driver node: the HAS command and state topics on the CANopen bus of the joints.
+
+Wiring only; the work is :class:`exo_has_driver.hardware.master.Master`. At start the node opens
+the bus (``interface``, ``channel``, ``bitrate``), configures every drive and sensor board and
+enables the drives (blocking, bounded; a device that does not answer ends the node with a
+message naming it), then logs ``driver ready``::
+
+    ros2 run exo_has_driver driver --ros-args -p interface:=socketcan -p channel:=can0
+
+Threads: the master runs its own I/O thread, which alone owns the bus, sends the SYNC at
+``rate`` and supervises the slaves; this node's timer, at the same rate, hands the newest
+commands to the master and publishes the states and events that came in. The SYNC must not
+jitter with the executor (DDS traffic, logging, garbage collection: a drive applies its RPDO at
+the SYNC), and a fault must stop the motors even if this process's executor is held up, so
+neither may wait for a callback. The node is paced by its timer (``spin_paced``): on the
+standalone backend it takes the commands that arrived since the last tick just before it, one
+wake-up per tick instead of one per message, at the price of up to one period between a
+command's arrival and the SYNC that applies it, and between a sample and its publication, as
+the simulated plant's node has.
+
+Topics: ``<joint>/has_command`` in (``qos_profile_sensor_data``), ``<joint>/has_state`` out
+(stamped with the hardware receive time of the sensor board's TPDO; the load force is not
+measured: NaN; the valve mode is inferred, see the master), ``safety_events`` out and in
+(``SAFETY_EVENT_QOS``): a FATAL, latched event from another node (the watchdog) is an e-stop,
+the driver's own events are ignored; a std_msgs/Empty on ``safety_reset`` asks to release the
+latched stop. On shutdown the motors are stopped (quick stop) and the drives disabled before
+the bus is closed.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import sys
+from functools import partial
+
+from exo_has_driver import can_dictionary as cd
+from exo_has_driver import safety
+from exo_has_driver.errors import HardwareConfigError
+from exo_has_driver.hardware.bus import open_bus
+from exo_has_driver.hardware.master import (
+    DEFAULT_ACCELERATION,
+    DEFAULT_COMMAND_TIMEOUT,
+    DEFAULT_MISSING_SYNCS,
+    DEFAULT_QUICK_STOP_DECELERATION,
+    JointConfig,
+    JointSample,
+    Master,
+    MasterConfig,
+)
+from exo_has_driver.hardware.units import DriveUnits
+from exo_has_runtime import (
+    STARTUP_ERRORS,
+    ExternalShutdownException,
+    FloatingPointRange,
+    IntegerRange,
+    Node,
+    ParameterDescriptor,
+    get_logger,
+    get_message,
+    init,
+    qos_profile_sensor_data,
+    spin_paced,
+    try_shutdown,
+)
+from exo_has_runtime.profiles import SAFETY_EVENT_QOS
+from exo_has_runtime.topics import (
+    JOINT_NAMES,
+    SAFETY_EVENT_TOPIC,
+    SAFETY_RESET_TOPIC,
+    check_joint,
+    has_command_topic,
+    has_state_topic,
+)
+from exo_has_sim.parameters import HasParameters, load_parameters
+
+HasCommand = get_message('exo_has_msgs/msg/HasCommand')
+HasState = get_message('exo_has_msgs/msg/HasState')
+SafetyEvent = get_message('exo_has_msgs/msg/SafetyEvent')
+Empty = get_message('std_msgs/msg/Empty')
+
+#: Own events remembered to recognise them on the shared topic.
+OWN_EVENTS = 256
+
+
+def _floats(low: float, high: float) -> list[FloatingPointRange]:
+    return [FloatingPointRange(from_value=low, to_value=high)]
+
+
+def _integers(low: int, high: int) -> list[IntegerRange]:
+    return [IntegerRange(from_value=low, to_value=high, step=1)]
+
+
+class Driver(Node):
+    """The HAS hardware driver: CANopen master of the joints' drives and sensor boards."""
+
+    def __init__(self) -> None:
+        super().__init__('driver')
+        declare = self.declare_parameter
+
+        def read_only(description: str, **ranges: object) -> ParameterDescriptor:
+            return ParameterDescriptor(description=description, read_only=True, **ranges)
+
+        joints = list(declare('joints', list(JOINT_NAMES), read_only(
+            f'joints on the bus, among {", ".join(JOINT_NAMES)}')).value)
+        interface = declare('interface', 'socketcan', read_only(
+            'python-can interface: socketcan (robot), udp_multicast (between processes), '
+            'virtual')).value
+        channel = declare('channel', 'can0', read_only(
+            'CAN channel: can0, or a multicast group such as 239.74.163.2')).value
+        bitrate = declare('bitrate', 1_000_000, read_only(
+            'bit rate [bit/s], for interfaces that set it',
+            integer_range=_integers(10_000, 1_000_000))).value
+        rate = declare('rate', 1.0 / cd.SYNC_PERIOD, read_only(
+            'SYNC and publishing rate [Hz] (the paper: 200)',
+            floating_point_range=_floats(10.0, 1000.0))).value
+        encoder_counts = declare('encoder_counts', cd.ENCODER_COUNTS, read_only(
+            'encoder counts per motor revolution',
+            integer_range=_integers(1, 1 << 24))).value
+        gear_ratio = declare('gear_ratio', cd.GEAR_RATIO, read_only(
+            'motor revolutions per pump revolution',
+            floating_point_range=_floats(0.01, 1000.0))).value
+        velocity_unit = declare('velocity_unit', cd.VELOCITY_UNIT, read_only(
+            'encoder counts/s per drive velocity unit (COPLEY: 0.1)',
+            floating_point_range=_floats(1e-6, 1e6))).value
+        current_unit = declare('current_unit', cd.CURRENT_UNIT, read_only(
+            'amperes per drive current unit (COPLEY: 0.01)',
+            floating_point_range=_floats(1e-6, 10.0))).value
+        heartbeat_period = declare('heartbeat_period', cd.HEARTBEAT_PERIOD, read_only(
+            'heartbeat producer time of every node [s]',
+            floating_point_range=_floats(0.001, 10.0))).value
+        heartbeat_timeout = declare('heartbeat_timeout', cd.HEARTBEAT_TIMEOUT, read_only(
+            'heartbeat consumer time [s], over heartbeat_period',
+            floating_point_range=_floats(0.002, 60.0))).value
+        missing_syncs = declare('missing_syncs', DEFAULT_MISSING_SYNCS, read_only(
+            'SYNC periods without a TPDO from a slave that are a bus fault',
+            integer_range=_integers(1, 1000))).value
+        acceleration = declare('acceleration', DEFAULT_ACCELERATION, read_only(
+            'profile acceleration and deceleration of the pump [rad/s^2]',
+            floating_point_range=_floats(1.0, 1e6))).value
+        quick_stop = declare('quick_stop_deceleration', DEFAULT_QUICK_STOP_DECELERATION,
+                             read_only('quick stop deceleration of the pump [rad/s^2]',
+                                       floating_point_range=_floats(1.0, 1e6))).value
+        command_timeout = declare('command_timeout', DEFAULT_COMMAND_TIMEOUT, read_only(
+            'age of the newest command after which the drive holds zero speed [s]',
+            floating_point_range=_floats(0.001, 60.0))).value
+        sources = {kind: declare(f'params_{kind}', kind, read_only(
+            f'{kind} HAS parameter set (stroke, relief and valve settings): {kind} or a '
+            'parameters YAML file')).value for kind in ('hip', 'knee')}
+        self._joints = _checked_joints(joints)
+        ids = {joint: (declare(f'{joint}.drive_id', cd.DRIVE_NODE_IDS[joint], read_only(
+            f'CANopen node ID of the {joint} drive', integer_range=_integers(1, 127))).value,
+                       declare(f'{joint}.sensor_id', cd.SENSOR_NODE_IDS[joint], read_only(
+            f'CANopen node ID of the {joint} sensor board',
+            integer_range=_integers(1, 127))).value)
+               for joint in self._joints}
+        params = {kind: _load(kind, source) for kind, source in sources.items()}
+        config = MasterConfig(
+            tuple(JointConfig.from_parameters(joint, params[_kind(joint)], *ids[joint])
+                  for joint in self._joints),
+            units=DriveUnits(encoder_counts, gear_ratio, velocity_unit, current_unit),
+            period=1.0 / rate, heartbeat_period=heartbeat_period,
+            heartbeat_timeout=heartbeat_timeout, missing_syncs=missing_syncs,
+            acceleration=acceleration, quick_stop_deceleration=quick_stop,
+            command_timeout=command_timeout)
+
+        self._start_ns = self.get_clock().now().nanoseconds
+        self._own: collections.deque[tuple[object, ...]] = collections.deque(maxlen=OWN_EVENTS)
+        self._history: SafetyEvent | None = None
+        self._event_publisher = self.create_publisher(SafetyEvent, SAFETY_EVENT_TOPIC,
+                                                      SAFETY_EVENT_QOS)
+        self._state_publishers = {
+            joint: self.create_publisher(HasState, has_state_topic(joint),
+                                         qos_profile_sensor_data)
+            for joint in self._joints}
+        self._bus = open_bus(interface, channel, bitrate)
+        self._master: Master | None = Master(self._bus, config)
+        try:
+            self._master.start()
+        except BaseException:
+            self._close_bus()
+            raise
+        for joint in self._joints:
+            self.create_subscription(HasCommand, has_command_topic(joint),
+                                     partial(self._on_command, joint), qos_profile_sensor_data)
+        self.create_subscription(Empty, SAFETY_RESET_TOPIC, self._on_reset, 10)
+        self.create_subscription(SafetyEvent, SAFETY_EVENT_TOPIC, self._on_event,
+                                 SAFETY_EVENT_QOS)
+        self.create_timer(1.0 / rate, self._on_tick)
+        self.get_logger().info(
+            f'driver ready: {", ".join(self._joints)} on {interface}:{channel}, drives '
+            f'{[ids[j][0] for j in self._joints]} and sensor boards '
+            f'{[ids[j][1] for j in self._joints]} enabled; SYNC at {rate:g} Hz, heartbeats '
+            f'{heartbeat_period * 1e3:.0f}/{heartbeat_timeout * 1e3:.0f} ms, bus silent after '
+            f'{missing_syncs} SYNCs')
+
+    def _on_command(self, joint: str, command: HasCommand) -> None:
+        if self._master is not None:
+            self._master.set_command(joint, command.motor_speed, command.enable)
+
+    def _on_reset(self, _: Empty) -> None:
+        if self._master is not None:
+            self._master.request_reset()
+
+    def _on_event(self, event: SafetyEvent) -> None:
+        if self._master is None or _signature(event) in self._own:
+            return
+        stamp_ns = event.header.stamp.sec * 1_000_000_000 + event.header.stamp.nanosec
+        if stamp_ns < self._start_ns:
+            # History of a transient-local topic: only whether a stop is still latched counts.
+            self._history = event
+            return
+        if event.severity == safety.SEVERITY_FATAL and event.latched:
+            self._master.request_stop(event.text)
+
+    def _on_tick(self) -> None:
+        master = self._master
+        if master is None:
+            return
+        history, self._history = self._history, None
+        if history is not None and history.latched:
+            master.request_stop(f'a stop latched before the driver started: {history.text}')
+        for sample in master.take_samples():
+            self._state_publishers[sample.joint].publish(_state(sample))
+        events = master.take_events()
+        if events:
+            self._emit(events)
+
+    def _emit(self, events: list[safety.Event]) -> None:
+        stamp = self.get_clock().now().to_msg()
+        logger = self.get_logger()
+        for event in events:
+            message = SafetyEvent(joint=event.joint, kind=event.kind, severity=event.severity,
+                                  value=event.value, limit=event.limit, latched=event.latched,
+                                  text=event.text)
+            message.header.stamp = stamp
+            self._own.append(_signature(message))
+            self._event_publisher.publish(message)
+            if event.severity >= safety.SEVERITY_ERROR:
+                logger.error(event.text)
+            elif event.severity == safety.SEVERITY_WARN:
+                logger.warning(event.text)
+            else:
+                logger.info(event.text)
+
+    def _close_bus(self) -> None:
+        master, self._master = self._master, None
+        if master is not None:
+            master.close()
+        self._bus.shutdown()
+
+    def destroy_node(self) -> None:
+        """Stop the motors, disable the drives and close the bus, then destroy the node."""
+        if self._master is not None:
+            self._close_bus()
+        super().destroy_node()
+
+
+def _signature(event: SafetyEvent) -> tuple[object, ...]:
+    stamp = event.header.stamp
+    return (stamp.sec, stamp.nanosec, event.kind, event.joint, event.text)
+
+
+def _state(sample: JointSample) -> HasState:
+    state = HasState(joint=sample.joint, position=sample.position, velocity=sample.velocity,
+                     pressure_a=sample.pressure_a, pressure_b=sample.pressure_b,
+                     motor_speed=sample.motor_speed,
+                     motor_speed_command=sample.motor_speed_command,
+                     motor_current=sample.motor_current, load_force=math.nan,
+                     valve_mode=sample.valve_mode)
+    seconds = math.floor(sample.stamp)
+    state.header.stamp.sec = int(seconds)
+    state.header.stamp.nanosec = min(int((sample.stamp - seconds) * 1e9), 999_999_999)
+    return state
+
+
+def _checked_joints(joints: list[str]) -> list[str]:
+    """Return the joints if each is known and given once.
+
+    Raises
+    ------
+    HardwareConfigError
+        Naming the parameter and the joint at fault.
+
+    """
+    if not joints:
+        msg = f'parameter joints is empty: give some of {", ".join(JOINT_NAMES)}'
+        raise HardwareConfigError(msg)
+    for joint in joints:
+        try:
+            check_joint(joint)
+        except ValueError as exc:
+            msg = f'parameter joints: {exc}'
+            raise HardwareConfigError(msg) from None
+    if len(set(joints)) != len(joints):
+        msg = f'parameter joints names a joint twice: {joints}'
+        raise HardwareConfigError(msg)
+    return joints
+
+
+def _kind(joint: str) -> str:
+    """``'hip'`` or ``'knee'`` for a known joint name."""
+    return joint.rsplit('_', 1)[-1]
+
+
+def _load(kind: str, source: str) -> HasParameters:
+    """Load the parameter set of parameter ``params_<kind>``, checking its joint type.
+
+    Raises
+    ------
+    HardwareConfigError
+        Naming the parameter, if the set cannot be loaded or is of the other joint type.
+
+    """
+    try:
+        params = load_parameters(source)
+    except ValueError as exc:
+        msg = f'parameter params_{kind}: {exc}'
+        raise HardwareConfigError(msg) from None
+    if params.joint_type != kind:
+        msg = f'parameter params_{kind}: {source} is a {params.joint_type} parameter set'
+        raise HardwareConfigError(msg)
+    return params
+
+
+def main(args: list[str] | None = None) -> None:
+    """Run the driver until interrupted."""
+    init(args=args)
+    node = None
+    try:
+        node = Driver()
+        spin_paced(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except STARTUP_ERRORS as exc:
+        if node is not None:
+            raise  # not a bad configuration but a fault while running: keep its traceback
+        get_logger('driver').fatal(f'cannot start: {exc}')
+        raise SystemExit(1) from None
+    finally:
+        if node is not None:
+            node.destroy_node()
+        try_shutdown()
+
+
+if __name__ == '__main__':
+    main(sys.argv)

@@ -1,0 +1,1028 @@
+"""The CANopen master of the HAS joints: start-up, the SYNC cycle, supervision and the stop latch.
+
+One :class:`Master` serves N joints (a CiA 402 drive and a sensor board each) on one python-can
+bus, as ``config/canopen/README.md`` specifies.
+
+Start (:meth:`Master.start`, blocking, each wait bounded): the master's heartbeat starts; NMT
+reset communication of every slave and wait for their boot-ups; SDO configuration of each (the
+identity 1018h and device type 1000h checked, the SYNC COB-ID checked, the cycle period,
+heartbeat consumer and producer times written; on the drives modes of operation 3, quick stop
+option code 2 and the profile ramps; each PDO's COB-ID, transmission type and mapping read and,
+where they differ from :mod:`exo_has_driver.can_dictionary`, rewritten per CiA 301: PDO invalid,
+mapping count 0, entries, count, PDO valid); NMT start and wait for every heartbeat to report
+operational; then the I/O thread runs and the drives are taken through fault reset and the
+enable sequence to operation enabled at zero speed. A device that does not answer raises
+:class:`CanOpenTimeoutError` naming the node and the object or step.
+
+Cycle (the I/O thread, which alone owns the bus and the protocol state): it receives frames until
+the next SYNC is due, then checks the slaves, writes every drive's RPDO1 (controlword from
+:mod:`.cia402`, target velocity from the newest command) and sends the SYNC; the master's
+heartbeat goes out every producer period. TPDOs are decoded with the structs of
+``can_dictionary`` as they come; once a joint's three TPDOs are in, a :class:`JointSample` is
+queued, stamped with the receive time of the sensor board's TPDO1 (``Message.timestamp``: the
+kernel's on SocketCAN). The caller's thread only swaps a command tuple (:meth:`set_command`),
+appends a request, or pops the queues (:meth:`take_samples`, :meth:`take_events`): it never
+waits on the bus.
+
+Supervision, each a FATAL :class:`~exo_has_driver.safety.Event` that latches the stop:
+a drive in fault or an EMCY (DRIVE_FAULT, value the error code; a sensor board's EMCY is a
+SENSOR_FAULT), a heartbeat older than the consumer time or a slave that reports another NMT
+state than operational or boots (HEARTBEAT_LOST), no TPDO from a slave for ``missing_syncs``
+SYNC periods, a failed send, a bus-off or error-passive bus (BUS_OFF), a sensor channel without
+reading, flagged by the board or out of range (SENSOR_FAULT), an e-stop request (E_STOP). A
+condition is reported once while it lasts. While latched every drive is sent quick stop (it
+brakes on its quick stop ramp to switch on disabled) and then disable voltage, target 0.
+:meth:`request_reset` releases the latch when no condition holds (a RESET event; else a WARN
+event naming what holds): drives in fault get one rising edge of the fault reset bit and, like
+the others, the enable sequence again, at zero speed until the next command.
+
+Valve mode: the hardware does not measure it, so it is inferred as the plant model defines it
+(exo_has_sim: relief while the safety valve passes flow, free when the motor is stopped and the
+system pressure has dropped): RELIEF when a chamber pressure is at or over the joint's relief
+setting; FREE when the drive is not in operation enabled, or when the motor is stopped (speed
+under the valve's release speed) and both pressures are under the valve's drop pressure;
+ASSIST otherwise.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import threading
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from functools import partial
+from typing import TypeVar
+
+import can
+
+from exo_has_driver import can_dictionary as cd
+from exo_has_driver import safety
+from exo_has_driver.errors import CanOpenError, CanOpenTimeoutError, HardwareConfigError
+from exo_has_driver.hardware import cia402
+from exo_has_driver.hardware.bus import bus_state_fault, error_frame_fault
+from exo_has_driver.hardware.sdo import SdoClient, object_name
+from exo_has_driver.hardware.units import DriveUnits, SensorFault, decode_sensors
+from exo_has_driver.safety import Event
+from exo_has_sim.parameters import HasParameters
+
+#: Default SYNC periods without a TPDO from a slave after which the bus counts as silent.
+DEFAULT_MISSING_SYNCS = 10
+#: Default profile acceleration and deceleration of the pump [rad/s^2]: full speed (418.9 rad/s)
+#: in 28 ms, against the motor's 5 ms time constant (the EDS default is about the same).
+DEFAULT_ACCELERATION = 15000.0
+#: Default quick stop deceleration [rad/s^2]: full speed to standstill in 14 ms.
+DEFAULT_QUICK_STOP_DECELERATION = 30000.0
+#: Default age of the newest command after which the drive is sent zero speed [s].
+DEFAULT_COMMAND_TIMEOUT = 0.25
+#: How long a drive has to leave fault after its fault reset edge [s].
+FAULT_RESET_TIME = 0.1
+#: How long an error frame's bus fault counts as holding [s].
+ERROR_FRAME_HOLD = 1.0
+#: Bus state polls: every this many SYNC periods (some interfaces ask the hardware).
+BUS_STATE_EVERY = 10
+#: Samples kept for the caller: a second of four joints at 200 Hz.
+SAMPLE_QUEUE = 800
+
+_NMT_STATE_NAMES = {cd.NMT_BOOT_UP: 'boot-up', cd.NMT_STOPPED: 'stopped',
+                    cd.NMT_OPERATIONAL: 'operational',
+                    cd.NMT_PRE_OPERATIONAL: 'pre-operational'}
+_DRIVE_PDOS = ((cd.RPDO1_COMMUNICATION, cd.RPDO1_MAPPING, cd.RPDO1_BASE, cd.DRIVE_RPDO1_MAP),
+               (cd.TPDO1_COMMUNICATION, cd.TPDO1_MAPPING, cd.TPDO1_BASE, cd.DRIVE_TPDO1_MAP))
+_SENSOR_PDOS = ((cd.TPDO1_COMMUNICATION, cd.TPDO1_MAPPING, cd.TPDO1_BASE, cd.SENSOR_TPDO1_MAP),
+                (cd.TPDO2_COMMUNICATION, cd.TPDO2_MAPPING, cd.TPDO2_BASE, cd.SENSOR_TPDO2_MAP))
+_DRIVE_TPDO = 1
+_SENSOR_TPDO1 = 2
+_SENSOR_TPDO2 = 4
+_ALL_TPDOS = _DRIVE_TPDO | _SENSOR_TPDO1 | _SENSOR_TPDO2
+_NAN = math.nan
+_DEFAULT_UNITS = DriveUnits()
+_T = TypeVar('_T')
+_Key = tuple[object, ...]
+
+
+@dataclass(frozen=True)
+class JointConfig:
+    """One joint on the bus: node IDs and what the checks and the valve inference need.
+
+    Attributes
+    ----------
+    name : str
+        Joint name (``left_hip``...).
+    drive_id, sensor_id : int
+        CANopen node IDs of the drive and the sensor board.
+    stroke : float
+        Cylinder stroke [m].
+    relief_pressure : float
+        Safety valve setting [Pa].
+    drop_pressure : float
+        Pressure under which the compact valve falls to free mode [Pa].
+    stopped_speed : float
+        Motor speed under which the motor counts as stopped [rad/s].
+
+    """
+
+    name: str
+    drive_id: int
+    sensor_id: int
+    stroke: float
+    relief_pressure: float
+    drop_pressure: float
+    stopped_speed: float
+
+    @classmethod
+    def from_parameters(cls, name: str, params: HasParameters, drive_id: int | None = None,
+                        sensor_id: int | None = None) -> JointConfig:
+        """Build a joint from its HAS parameter set; node IDs default to can_dictionary's.
+
+        Raises
+        ------
+        HardwareConfigError
+            For a joint that has no default node ID.
+
+        """
+        try:
+            drive = cd.DRIVE_NODE_IDS[name] if drive_id is None else drive_id
+            sensor = cd.SENSOR_NODE_IDS[name] if sensor_id is None else sensor_id
+        except KeyError:
+            msg = (f'joint {name!r} has no default node ID: known are '
+                   f'{", ".join(cd.DRIVE_NODE_IDS)}')
+            raise HardwareConfigError(msg) from None
+        return cls(name, drive, sensor, params.stroke, params.relief_pressure,
+                   params.valve_drop_pressure, params.valve_release_speed)
+
+
+@dataclass(frozen=True)
+class MasterConfig:
+    """Settings of the master; times in seconds, accelerations in rad/s^2 of the pump.
+
+    Raises
+    ------
+    HardwareConfigError
+        Naming the first setting out of range, or a node ID used twice.
+
+    """
+
+    joints: tuple[JointConfig, ...]
+    units: DriveUnits = _DEFAULT_UNITS
+    period: float = cd.SYNC_PERIOD
+    heartbeat_period: float = cd.HEARTBEAT_PERIOD
+    heartbeat_timeout: float = cd.HEARTBEAT_TIMEOUT
+    missing_syncs: int = DEFAULT_MISSING_SYNCS
+    acceleration: float = DEFAULT_ACCELERATION
+    quick_stop_deceleration: float = DEFAULT_QUICK_STOP_DECELERATION
+    command_timeout: float = DEFAULT_COMMAND_TIMEOUT
+    sdo_timeout: float = 0.5
+    boot_timeout: float = 2.0
+    enable_timeout: float = 2.0
+    master_id: int = cd.MASTER_NODE_ID
+
+    def __post_init__(self) -> None:
+        if not self.joints:
+            msg = 'the master needs at least one joint'
+            raise HardwareConfigError(msg)
+        for name in ('period', 'heartbeat_period', 'heartbeat_timeout', 'acceleration',
+                     'quick_stop_deceleration', 'command_timeout', 'sdo_timeout',
+                     'boot_timeout', 'enable_timeout'):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0.0):
+                msg = f'{name} = {value!r} must be positive and finite'
+                raise HardwareConfigError(msg)
+        # The object dictionary holds the heartbeat times in whole milliseconds (16 bits).
+        for name in ('heartbeat_period', 'heartbeat_timeout'):
+            ms = round(getattr(self, name) * 1e3)
+            if not 1 <= ms <= 0xFFFF:
+                msg = f'{name} = {getattr(self, name)!r} s must be 1 ms to 65.535 s'
+                raise HardwareConfigError(msg)
+        if self.heartbeat_timeout <= self.heartbeat_period:
+            msg = (f'heartbeat_timeout {self.heartbeat_timeout} s must exceed heartbeat_period '
+                   f'{self.heartbeat_period} s')
+            raise HardwareConfigError(msg)
+        if isinstance(self.missing_syncs, bool) or not isinstance(self.missing_syncs, int) \
+                or self.missing_syncs < 1:
+            msg = f'missing_syncs = {self.missing_syncs!r} must be an integer of at least 1'
+            raise HardwareConfigError(msg)
+        ids = [self.master_id]
+        for joint in self.joints:
+            ids += [joint.drive_id, joint.sensor_id]
+        for node in ids:
+            if isinstance(node, bool) or not isinstance(node, int) or not 1 <= node <= 127:
+                msg = f'node ID {node!r} must be an integer of 1 to 127'
+                raise HardwareConfigError(msg)
+        if len(set(ids)) != len(ids):
+            msg = f'node IDs must differ (master and every drive and sensor board): {ids}'
+            raise HardwareConfigError(msg)
+        names = [joint.name for joint in self.joints]
+        if len(set(names)) != len(names):
+            msg = f'joint names must differ: {names}'
+            raise HardwareConfigError(msg)
+        self.units.acceleration_to_drive(self.acceleration)
+        self.units.acceleration_to_drive(self.quick_stop_deceleration)
+
+
+@dataclass(frozen=True, slots=True)
+class JointSample:
+    """One joint's state at a SYNC, in the units of exo_has_msgs/msg/HasState.
+
+    Attributes
+    ----------
+    joint : str
+        Joint name.
+    stamp : float
+        Receive time of the sensor board's TPDO1 [s since the epoch] (python-can's timestamp).
+    position, velocity : float
+        Cylinder extension [m] and its velocity [m/s]; NaN without reading.
+    pressure_a, pressure_b : float
+        Chamber gauge pressures [Pa]; NaN without reading.
+    motor_speed : float
+        Measured pump speed [rad/s].
+    motor_speed_command : float
+        Target speed sent with this SYNC [rad/s].
+    motor_current : float
+        Motor current [A].
+    valve_mode : int
+        Inferred valve mode (``safety.VALVE_*``); see the module docstring.
+    drive_state : str
+        CiA 402 state of the drive.
+    sensor_fault : bool
+        Whether the sensor board sample has a fault.
+    counter : int
+        The sensor board's sample counter.
+
+    """
+
+    joint: str
+    stamp: float
+    position: float
+    velocity: float
+    pressure_a: float
+    pressure_b: float
+    motor_speed: float
+    motor_speed_command: float
+    motor_current: float
+    valve_mode: int
+    drive_state: str
+    sensor_fault: bool
+    counter: int
+
+
+def infer_valve_mode(joint: JointConfig, drive_state: str, motor_speed: float,
+                     pressure_a: float, pressure_b: float) -> int:
+    """Infer the compact valve's mode (``safety.VALVE_*``); see the module docstring."""
+    if pressure_a >= joint.relief_pressure or pressure_b >= joint.relief_pressure:
+        return safety.VALVE_RELIEF
+    if drive_state != cia402.OPERATION_ENABLED:
+        return safety.VALVE_FREE
+    if abs(motor_speed) < joint.stopped_speed and pressure_a < joint.drop_pressure \
+            and pressure_b < joint.drop_pressure:
+        return safety.VALVE_FREE
+    return safety.VALVE_ASSIST
+
+
+class _Slave:
+    """What the master tracks of one slave."""
+
+    __slots__ = ('heartbeat_state', 'heartbeat_time', 'joint', 'label', 'missing', 'node',
+                 'seen')
+
+    def __init__(self, node: int, joint: str, role: str) -> None:
+        self.node = node
+        self.joint = joint
+        self.label = f'{joint} {role} (node {node})'
+        self.heartbeat_time: float | None = None
+        self.heartbeat_state: int | None = None
+        self.seen = True
+        self.missing = 0
+
+
+class _Joint:
+    """What the master tracks of one joint; written by the I/O thread only."""
+
+    __slots__ = (
+        'config',
+        'counter',
+        'current',
+        'drive',
+        'emcy_code',
+        'fault',
+        'fault_reset',
+        'fault_reset_until',
+        'last_cw',
+        'position',
+        'pressure_a',
+        'pressure_b',
+        'received',
+        'rpdo',
+        'sensor',
+        'stamp',
+        'state',
+        'status',
+        'target',
+        'velocity',
+        'velocity_sensor',
+    )
+
+    def __init__(self, config: JointConfig) -> None:
+        self.config = config
+        self.drive = _Slave(config.drive_id, config.name, 'drive')
+        self.sensor = _Slave(config.sensor_id, config.name, 'sensor board')
+        self.rpdo = can.Message(arbitration_id=cd.RPDO1_BASE + config.drive_id,
+                                data=bytearray(cd.DRIVE_RPDO1.size), is_extended_id=False)
+        self.last_cw = cd.CW_DISABLE_VOLTAGE
+        self.target = 0
+        self.state = cia402.UNKNOWN
+        self.fault_reset = False
+        self.fault_reset_until = -1.0
+        self.emcy_code: int | None = None
+        self.received = 0
+        self.stamp = 0.0
+        self.velocity = 0
+        self.current = 0
+        self.position = 0
+        self.pressure_a = 0
+        self.pressure_b = 0
+        self.velocity_sensor = 0
+        self.status = 0
+        self.counter = 0
+        self.fault: SensorFault | None = None
+
+
+class Master:
+    """CANopen master of the HAS joints on one bus; see the module docstring.
+
+    Parameters
+    ----------
+    bus : can.BusABC
+        An open bus; the master does not shut it down (its opener does).
+    config : MasterConfig
+        Joints, units and timing.
+    clock : callable
+        Monotonic time [s]; the default is :func:`time.monotonic`.
+
+    """
+
+    def __init__(self, bus: can.BusABC, config: MasterConfig,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.bus = bus
+        self.config = config
+        self._clock = clock
+        self._units = config.units
+        self._joints = [_Joint(joint) for joint in config.joints]
+        self._by_name = {joint.config.name: joint for joint in self._joints}
+        self._slaves = [slave for joint in self._joints for slave in (joint.drive, joint.sensor)]
+        self._by_node = {slave.node: slave for slave in self._slaves}
+        now = clock()
+        # (speed [rad/s], enable, receive time [s]) per joint; swapped whole by set_command.
+        self._commands: list[tuple[float, bool, float]] = [(0.0, True, now)] * len(self._joints)
+        self._requests: collections.deque[tuple[str, str]] = collections.deque()
+        self._samples: collections.deque[JointSample] = collections.deque(maxlen=SAMPLE_QUEUE)
+        self._events: collections.deque[Event] = collections.deque()
+        self._sdo_answers: dict[int, bytes] = {}
+        self._handlers: dict[int, Callable[[can.Message], None]] = {}
+        self._register_handlers()
+        self._heartbeat = can.Message(arbitration_id=cd.HEARTBEAT_BASE + config.master_id,
+                                      data=bytes((cd.NMT_OPERATIONAL,)), is_extended_id=False)
+        self._sync = can.Message(arbitration_id=cd.SYNC_COB_ID, data=b'',
+                                 is_extended_id=False)
+        self._heartbeat_due: float | None = None
+        self._latched = False
+        self._cause: Event | None = None
+        self._active: set[_Key] = set()
+        self._running = False
+        self._operational = False
+        self._thread: threading.Thread | None = None
+        self._stop_thread = threading.Event()
+        self._shutting_down = False
+        self._sync_count = 0
+        self._send_failed: str | None = None
+        self._send_failed_sync = -1
+        self._frame_fault: str | None = None
+        self._frame_fault_time = -math.inf
+        self._state_fault: str | None = None
+        self.failure: BaseException | None = None
+
+    # --- the caller's side -------------------------------------------------------------------
+    @property
+    def joints(self) -> tuple[str, ...]:
+        """The joints, in configuration order."""
+        return tuple(joint.config.name for joint in self._joints)
+
+    @property
+    def latched(self) -> bool:
+        """Whether a stop is latched."""
+        return self._latched
+
+    @property
+    def cause(self) -> Event | None:
+        """The event that latched the stop, None when not latched."""
+        return self._cause
+
+    @property
+    def running(self) -> bool:
+        """Whether the I/O thread runs the SYNC cycle."""
+        return self._thread is not None and self._thread.is_alive()
+
+    def drive_states(self) -> dict[str, str]:
+        """Each joint's drive state as its newest TPDO reported it."""
+        return {joint.config.name: joint.state for joint in self._joints}
+
+    def all_enabled(self) -> bool:
+        """Whether every drive reports operation enabled."""
+        return all(joint.state == cia402.OPERATION_ENABLED for joint in self._joints)
+
+    def set_command(self, joint: str, motor_speed: float, enable: bool,
+                    now: float | None = None) -> None:
+        """Take a joint's newest command: pump speed [rad/s], drive enabled.
+
+        A NaN or infinite speed disables the drive (as a stop command would). Cheap and
+        non-blocking: it is used at the next SYNC.
+
+        Raises
+        ------
+        HardwareConfigError
+            For a joint the master does not serve.
+
+        """
+        index = self._index(joint)
+        t = self._clock() if now is None else now
+        if math.isfinite(motor_speed):
+            self._commands[index] = (float(motor_speed), bool(enable), t)
+        else:
+            self._commands[index] = (0.0, False, t)
+
+    def request_stop(self, text: str) -> None:
+        """Ask for an emergency stop (E_STOP, latched) at the next SYNC."""
+        self._requests.append(('stop', text))
+
+    def request_reset(self) -> None:
+        """Ask to release the latched stop at the next SYNC (answered by an event)."""
+        self._requests.append(('reset', ''))
+
+    def take_samples(self) -> list[JointSample]:
+        """Return the samples completed since the last call, oldest first."""
+        return _drain(self._samples)
+
+    def take_events(self) -> list[Event]:
+        """Return the events raised since the last call, oldest first."""
+        return _drain(self._events)
+
+    # --- start and close ---------------------------------------------------------------------
+    def start(self) -> None:
+        """Bring every slave up and the drives to operation enabled at zero speed; blocking.
+
+        Raises
+        ------
+        CanOpenTimeoutError
+            If a slave does not boot, answer an SDO, report operational, or a drive does not
+            reach operation enabled in time; the node and object or step are named.
+        CanOpenError
+            On an SDO abort, a wrong identity, or a fault while enabling.
+
+        """
+        if self._thread is not None:
+            msg = 'the master was started already'
+            raise CanOpenError(msg)
+        try:
+            self._start_slaves()
+        except BaseException:
+            self._send_best_effort_stop()
+            raise
+        self._thread = threading.Thread(target=self._run, name='can-master', daemon=True)
+        self._thread.start()
+        deadline = self._clock() + self.config.enable_timeout
+        while not self.all_enabled():
+            if self._latched or not self.running or self._clock() > deadline:
+                self.close()
+                if self.failure is not None:
+                    msg = f'the CAN master failed while enabling the drives: {self.failure}'
+                    raise CanOpenError(msg) from self.failure
+                if self._cause is not None:
+                    msg = f'a fault while enabling the drives: {self._cause.text}'
+                    raise CanOpenError(msg)
+                states = ', '.join(f'{joint.config.name} drive (node {joint.drive.node}) in '
+                                   f'{joint.state}' for joint in self._joints
+                                   if joint.state != cia402.OPERATION_ENABLED)
+                msg = (f'drives not in operation enabled within '
+                       f'{self.config.enable_timeout:g} s: {states}')
+                raise CanOpenTimeoutError(msg)
+            time.sleep(self.config.period)
+
+    def close(self, timeout: float = 1.0) -> None:
+        """Stop every motor (quick stop, then disable voltage), then end the I/O thread.
+
+        Waits up to ``timeout`` [s] for the drives to reach switch on disabled. The bus stays
+        open.
+        """
+        thread = self._thread
+        if thread is None or not thread.is_alive():
+            return
+        self._shutting_down = True
+        deadline = self._clock() + timeout
+        while self._clock() < deadline and thread.is_alive():
+            if all(joint.state in (cia402.SWITCH_ON_DISABLED, cia402.FAULT, cia402.UNKNOWN)
+                   for joint in self._joints):
+                break
+            time.sleep(self.config.period)
+        self._stop_thread.set()
+        thread.join(timeout=max(1.0, 10 * self.config.period))
+
+    # --- start-up (caller's thread, before the I/O thread runs) ------------------------------
+    def _start_slaves(self) -> None:
+        config = self.config
+        self._heartbeat_due = self._clock()
+        self._pump(0.0)  # forget frames from before the start
+        for slave in self._slaves:
+            slave.heartbeat_state = None
+            self._send_nmt(cd.NMT_RESET_COMMUNICATION, slave.node)
+        self._pump(config.boot_timeout, lambda: all(
+            s.heartbeat_state is not None for s in self._slaves))
+        silent = [s.label for s in self._slaves if s.heartbeat_state is None]
+        if silent:
+            msg = (f'no boot-up within {config.boot_timeout:g} s of the NMT reset '
+                   f'communication from {", ".join(silent)}: powered, on the bus, at that ID?')
+            raise CanOpenTimeoutError(msg)
+        sdo = SdoClient(self._exchange, timeout=config.sdo_timeout)
+        for joint in self._joints:
+            self._configure_drive(sdo, joint.drive.node)
+            self._configure_sensor(sdo, joint.sensor.node)
+        for slave in self._slaves:
+            slave.heartbeat_state = None
+            self._send_nmt(cd.NMT_START, slave.node)
+        # Wait for a heartbeat sent after the start command, each a producer period apart.
+        self._pump(max(config.boot_timeout, 3 * config.heartbeat_period), lambda: all(
+            s.heartbeat_state == cd.NMT_OPERATIONAL for s in self._slaves))
+        late = [f'{s.label} ({_nmt_name(s.heartbeat_state)})' for s in self._slaves
+                if s.heartbeat_state != cd.NMT_OPERATIONAL]
+        if late:
+            msg = (f'not operational within {config.boot_timeout:g} s of the NMT start: '
+                   f'{", ".join(late)}')
+            raise CanOpenTimeoutError(msg)
+        now = self._clock()
+        for slave in self._slaves:
+            slave.heartbeat_time = now
+            slave.seen = True
+            slave.missing = 0
+        for joint in self._joints:
+            # Drives may be in fault from before (a lost master heartbeat): one reset edge.
+            self._arm_fault_reset(joint, now)
+        self._operational = True
+
+    def _configure_common(self, sdo: SdoClient, node: int, product: int,
+                          device_type: int) -> None:
+        config = self.config
+        found = (sdo.read_unsigned(node, cd.IDENTITY, 1), sdo.read_unsigned(node, cd.IDENTITY, 2))
+        if found != (cd.VENDOR_ID, product):
+            msg = (f'node {node}: identity {object_name(cd.IDENTITY, 1)}/2 is vendor '
+                   f'0x{found[0]:08X}, product 0x{found[1]:08X}; expected vendor '
+                   f'0x{cd.VENDOR_ID:08X}, product 0x{product:08X}: wrong device at this ID?')
+            raise CanOpenError(msg)
+        found_type = sdo.read_unsigned(node, cd.DEVICE_TYPE, 0)
+        if found_type != device_type:
+            msg = (f'node {node}: device type {object_name(cd.DEVICE_TYPE, 0)} is '
+                   f'0x{found_type:08X}, expected 0x{device_type:08X}')
+            raise CanOpenError(msg)
+        sync_cob = sdo.read_unsigned(node, cd.COB_ID_SYNC, 0)
+        if sync_cob & 0x7FF != cd.SYNC_COB_ID:
+            msg = (f'node {node}: COB-ID SYNC {object_name(cd.COB_ID_SYNC, 0)} is '
+                   f'0x{sync_cob:08X}, expected 0x{cd.SYNC_COB_ID:X}')
+            raise CanOpenError(msg)
+        sdo.write_unsigned(node, cd.CYCLE_PERIOD, 0, round(config.period * 1e6), 4)
+        consumer = (config.master_id << 16) | round(config.heartbeat_timeout * 1e3)
+        sdo.write_unsigned(node, cd.CONSUMER_HEARTBEAT_TIME, 1, consumer, 4)
+        sdo.write_unsigned(node, cd.PRODUCER_HEARTBEAT_TIME, 0,
+                           round(config.heartbeat_period * 1e3), 2)
+
+    def _configure_drive(self, sdo: SdoClient, node: int) -> None:
+        self._configure_common(sdo, node, cd.DRIVE_PRODUCT_CODE, cd.DRIVE_DEVICE_TYPE)
+        units = self._units
+        sdo.write_signed(node, cd.MODES_OF_OPERATION, 0, cd.PROFILE_VELOCITY_MODE, 1)
+        sdo.write_signed(node, cd.QUICK_STOP_OPTION_CODE, 0, 2, 2)
+        ramp = units.acceleration_to_drive(self.config.acceleration)
+        sdo.write_unsigned(node, cd.PROFILE_ACCELERATION, 0, ramp, 4)
+        sdo.write_unsigned(node, cd.PROFILE_DECELERATION, 0, ramp, 4)
+        sdo.write_unsigned(node, cd.QUICK_STOP_DECELERATION, 0,
+                           units.acceleration_to_drive(self.config.quick_stop_deceleration), 4)
+        mode = sdo.read_signed(node, cd.MODES_OF_OPERATION_DISPLAY, 0)
+        if mode != cd.PROFILE_VELOCITY_MODE:
+            msg = (f'node {node}: modes of operation display '
+                   f'{object_name(cd.MODES_OF_OPERATION_DISPLAY, 0)} is {mode} after writing '
+                   f'{cd.PROFILE_VELOCITY_MODE} (profile velocity)')
+            raise CanOpenError(msg)
+        for pdo in _DRIVE_PDOS:
+            self._configure_pdo(sdo, node, *pdo)
+
+    def _configure_sensor(self, sdo: SdoClient, node: int) -> None:
+        self._configure_common(sdo, node, cd.SENSOR_PRODUCT_CODE, cd.SENSOR_DEVICE_TYPE)
+        for pdo in _SENSOR_PDOS:
+            self._configure_pdo(sdo, node, *pdo)
+
+    def _configure_pdo(self, sdo: SdoClient, node: int, communication: int, mapping: int,
+                       base: int, layout: Iterable[tuple[int, int, int]]) -> None:
+        """Check a PDO against can_dictionary; rewrite it per CiA 301 where it differs."""
+        wanted = [(index << 16) | (sub << 8) | bits for index, sub, bits in layout]
+        cob_id = base + node
+        found_cob = sdo.read_unsigned(node, communication, 1)
+        found_type = sdo.read_unsigned(node, communication, 2)
+        count = sdo.read_unsigned(node, mapping, 0)
+        entries = [sdo.read_unsigned(node, mapping, sub) for sub in range(1, count + 1)]
+        if found_cob == cob_id and found_type == cd.PDO_TRANSMISSION_SYNCHRONOUS \
+                and entries == wanted:
+            return
+        # CiA 301: make the PDO invalid, set the mapping count to 0, write the entries, the
+        # count, then the COB-ID with the PDO valid again.
+        sdo.write_unsigned(node, communication, 1, cob_id | cd.PDO_COB_ID_INVALID, 4)
+        sdo.write_unsigned(node, communication, 2, cd.PDO_TRANSMISSION_SYNCHRONOUS, 1)
+        sdo.write_unsigned(node, mapping, 0, 0, 1)
+        for sub, entry in enumerate(wanted, start=1):
+            sdo.write_unsigned(node, mapping, sub, entry, 4)
+        sdo.write_unsigned(node, mapping, 0, len(wanted), 1)
+        sdo.write_unsigned(node, communication, 1, cob_id, 4)
+
+    def _exchange(self, node: int, request: bytes | None, timeout: float) -> bytes | None:
+        """Send an SDO request and wait for the node's answer (the SdoClient's transport)."""
+        if request is not None:
+            self._sdo_answers.pop(node, None)
+            self._send(can.Message(arbitration_id=cd.SDO_RX_BASE + node, data=request,
+                                   is_extended_id=False))
+        self._pump(timeout, lambda: node in self._sdo_answers)
+        return self._sdo_answers.pop(node, None)
+
+    def _pump(self, timeout: float, done: Callable[[], bool] | None = None) -> None:
+        """Receive and handle frames, producing the heartbeat, until done() or the timeout."""
+        deadline = self._clock() + timeout
+        while True:
+            now = self._clock()
+            self._produce_heartbeat(now)
+            if (done is not None and done()) or now > deadline:
+                return
+            wait = deadline - now
+            if self._heartbeat_due is not None:
+                wait = min(wait, self._heartbeat_due - now)
+            message = self.bus.recv(max(0.0, wait))
+            if message is not None:
+                self._on_frame(message)
+            elif wait <= 0.0 and now >= deadline:
+                return
+
+    # --- the I/O thread --------------------------------------------------------------------
+    def _run(self) -> None:
+        period = self.config.period
+        bus = self.bus
+        on_frame = self._on_frame
+        clock = self._clock
+        next_sync = clock()
+        try:
+            while not self._stop_thread.is_set():
+                now = clock()
+                if now < next_sync:
+                    message = bus.recv(next_sync - now)
+                    if message is not None:
+                        on_frame(message)
+                    continue
+                # Take whatever waited (after a stall too) before judging the slaves.
+                message = bus.recv(0.0)
+                while message is not None:
+                    on_frame(message)
+                    message = bus.recv(0.0)
+                self._cycle(clock())
+                next_sync += period
+                if next_sync < now:
+                    next_sync = now + period  # held up: no burst of SYNCs
+        except Exception as exc:  # the loop must not die silently: stop and tell
+            self.failure = exc
+            self._latch(('failure',), '', safety.KIND_BUS_OFF, _NAN, _NAN,
+                        f'the CAN master loop failed: {exc!r}')
+            self._send_best_effort_stop()
+
+    def _cycle(self, now: float) -> None:
+        while self._requests:
+            kind, text = self._requests.popleft()
+            if kind == 'stop':
+                self._latch(('e-stop',), '', safety.KIND_E_STOP, _NAN, _NAN,
+                            f'emergency stop: {text}')
+            else:
+                self._reset(now)
+        self._supervise(now)
+        units = self._units
+        command_timeout = self.config.command_timeout
+        for index, joint in enumerate(self._joints):
+            if self._latched or self._shutting_down:
+                want = cia402.Want.STOPPED
+                speed = 0.0
+            else:
+                speed, enable, received = self._commands[index]
+                want = cia402.Want.ENABLED if enable else cia402.Want.DISABLED
+                if now - received > command_timeout:
+                    speed = 0.0  # no fresh command: hold still, the watchdog reports it
+            reset = joint.fault_reset and not self._latched
+            cw = cia402.controlword(joint.state, want, joint.last_cw, reset)
+            if cw == cd.CW_FAULT_RESET:
+                joint.fault_reset = False
+            target = units.velocity_to_drive(speed) \
+                if want is cia402.Want.ENABLED and joint.state == cia402.OPERATION_ENABLED \
+                else 0
+            cd.DRIVE_RPDO1.pack_into(joint.rpdo.data, 0, cw, target)
+            joint.last_cw = cw
+            joint.target = target
+            self._send(joint.rpdo)
+        self._send(self._sync)
+        self._sync_count += 1
+        for slave in self._slaves:
+            slave.seen = False
+        self._produce_heartbeat(now)
+
+    def _supervise(self, now: float) -> None:
+        config = self.config
+        for slave in self._slaves:
+            # TPDOs of the previous SYNC.
+            if slave.seen:
+                slave.missing = 0
+            else:
+                slave.missing += 1
+            key = ('missing', slave.node)
+            if slave.missing >= config.missing_syncs:
+                self._latch(key, slave.joint, safety.KIND_BUS_OFF, _NAN, _NAN,
+                            f'{slave.label}: no TPDO for {slave.missing} SYNC periods')
+            else:
+                self._active.discard(key)
+            lost = self._heartbeat_fault(slave, now)
+            key = ('heartbeat', slave.node)
+            if lost is not None:
+                age = now - slave.heartbeat_time if slave.heartbeat_time is not None else _NAN
+                self._latch(key, slave.joint, safety.KIND_HEARTBEAT_LOST, age,
+                            config.heartbeat_timeout, f'{slave.label}: {lost}')
+            else:
+                self._active.discard(key)
+        for joint in self._joints:
+            if cia402.is_fault(joint.state) and now > joint.fault_reset_until:
+                code = joint.emcy_code
+                name = cd.ERROR_CODES.get(code, 'unknown error') if code is not None else ''
+                what = f'error code 0x{code:04X} {name}' if code is not None \
+                    else 'no EMCY received'
+                self._latch(('drive', joint.config.name), joint.config.name,
+                            safety.KIND_DRIVE_FAULT, float(code) if code is not None else _NAN,
+                            _NAN, f'{joint.drive.label} in {joint.state} ({what})')
+        if self._sync_count % BUS_STATE_EVERY == 0:
+            self._state_fault = bus_state_fault(self.bus)
+        bus_checks: tuple[tuple[_Key, str | None], ...] = (
+            (('bus state',), self._state_fault), (('send',), self._send_fault()),
+            (('error frame',), self._error_frame_fault(now)))
+        for bus_key, text in bus_checks:
+            if text is not None:
+                self._latch(bus_key, '', safety.KIND_BUS_OFF, _NAN, _NAN, text)
+            else:
+                self._active.discard(bus_key)
+
+    def _heartbeat_fault(self, slave: _Slave, now: float) -> str | None:
+        if slave.heartbeat_state != cd.NMT_OPERATIONAL:
+            return f'reports NMT state {_nmt_name(slave.heartbeat_state)}, not operational'
+        if slave.heartbeat_time is None or now - slave.heartbeat_time > \
+                self.config.heartbeat_timeout:
+            age = now - slave.heartbeat_time if slave.heartbeat_time is not None else _NAN
+            return (f'heartbeat lost: none for {age:.3f} s (consumer time '
+                    f'{self.config.heartbeat_timeout:.3f} s)')
+        return None
+
+    def _send_fault(self) -> str | None:
+        if self._send_failed is not None and self._send_failed_sync >= self._sync_count - 1:
+            return self._send_failed
+        return None
+
+    def _error_frame_fault(self, now: float) -> str | None:
+        if self._frame_fault is not None and now - self._frame_fault_time <= ERROR_FRAME_HOLD:
+            return self._frame_fault
+        return None
+
+    def _holding(self, now: float) -> list[tuple[str, int, float, float, str]]:
+        """List the fault conditions that forbid a reset now.
+
+        Each as (joint, kind, value, limit, text). A slave found pre-operational or stopped
+        (it rebooted: its defaults are the specified configuration) is sent NMT start, so that
+        a later reset can succeed.
+        """
+        holding = []
+        for slave in self._slaves:
+            lost = self._heartbeat_fault(slave, now)
+            if lost is not None:
+                age = now - slave.heartbeat_time if slave.heartbeat_time is not None else _NAN
+                holding.append((slave.joint, safety.KIND_HEARTBEAT_LOST, age,
+                                self.config.heartbeat_timeout, f'{slave.label}: {lost}'))
+                if slave.heartbeat_state in (cd.NMT_PRE_OPERATIONAL, cd.NMT_STOPPED):
+                    self._send_nmt(cd.NMT_START, slave.node)
+            elif slave.missing >= self.config.missing_syncs:
+                holding.append((slave.joint, safety.KIND_BUS_OFF, _NAN, _NAN,
+                                f'{slave.label}: no TPDO for {slave.missing} SYNC periods'))
+        for joint in self._joints:
+            if joint.fault is not None:
+                holding.append((joint.config.name, safety.KIND_SENSOR_FAULT, joint.fault.value,
+                                joint.fault.limit,
+                                f'{joint.sensor.label}: {joint.fault.text}'))
+        for text in (self._state_fault, self._send_fault(), self._error_frame_fault(now)):
+            if text is not None:
+                holding.append(('', safety.KIND_BUS_OFF, _NAN, _NAN, text))
+        return holding
+
+    def _reset(self, now: float) -> None:
+        if not self._latched:
+            self._events.append(Event('', safety.KIND_RESET, safety.SEVERITY_INFO, _NAN, _NAN,
+                                      False, 'reset: no stop was latched'))
+            return
+        holding = self._holding(now)
+        if holding:
+            name, kind, value, limit, _ = holding[0]
+            texts = '; '.join(text for *_, text in holding)
+            self._events.append(Event(name, kind, safety.SEVERITY_WARN, value, limit, True,
+                                      f'reset refused: {texts}'))
+            return
+        cause = self._cause
+        self._latched = False
+        self._cause = None
+        self._active.clear()
+        for index, joint in enumerate(self._joints):
+            self._commands[index] = (0.0, True, now)
+            self._arm_fault_reset(joint, now)
+        because = f' (latched by {cause.text})' if cause is not None else ''
+        self._events.append(Event('', safety.KIND_RESET, safety.SEVERITY_INFO, _NAN, _NAN,
+                                  False, f'reset: stop released{because}'))
+
+    def _arm_fault_reset(self, joint: _Joint, now: float) -> None:
+        """Allow one fault reset edge and give the drive time to leave fault."""
+        joint.fault_reset = True
+        joint.fault_reset_until = now + FAULT_RESET_TIME + 2 * self.config.period
+        joint.emcy_code = None
+
+    def _latch(self, key: _Key, joint: str, kind: int,
+               value: float, limit: float, text: str) -> None:
+        """Raise a FATAL event for a condition not yet reported, and latch the stop."""
+        if key in self._active:
+            return
+        self._active.add(key)
+        self._latched = True
+        event = Event(joint, kind, safety.SEVERITY_FATAL, float(value), float(limit), True, text)
+        if self._cause is None:
+            self._cause = event
+        self._events.append(event)
+
+    # --- frames in -----------------------------------------------------------------------------
+    def _register_handlers(self) -> None:
+        handlers = self._handlers
+        for joint in self._joints:
+            drive, sensor = joint.drive.node, joint.sensor.node
+            handlers[cd.TPDO1_BASE + drive] = partial(self._on_drive_tpdo, joint)
+            handlers[cd.TPDO1_BASE + sensor] = partial(self._on_sensor_tpdo1, joint)
+            handlers[cd.TPDO2_BASE + sensor] = partial(self._on_sensor_tpdo2, joint)
+            handlers[cd.EMCY_BASE + drive] = partial(self._on_emcy, joint, True)
+            handlers[cd.EMCY_BASE + sensor] = partial(self._on_emcy, joint, False)
+        for slave in self._slaves:
+            handlers[cd.HEARTBEAT_BASE + slave.node] = partial(self._on_heartbeat, slave)
+            handlers[cd.SDO_TX_BASE + slave.node] = partial(self._on_sdo, slave.node)
+
+    def _on_frame(self, message: can.Message) -> None:
+        if message.is_error_frame:
+            fault = error_frame_fault(message)
+            if fault is not None:
+                self._frame_fault = fault
+                self._frame_fault_time = self._clock()
+            return
+        handler = self._handlers.get(message.arbitration_id)
+        if handler is not None and not message.is_remote_frame:
+            handler(message)
+
+    def _on_heartbeat(self, slave: _Slave, message: can.Message) -> None:
+        if not message.data:
+            return
+        state = message.data[0] & 0x7F
+        slave.heartbeat_state = state
+        slave.heartbeat_time = self._clock()
+        if state == cd.NMT_BOOT_UP and self._operational:
+            self._latch(('heartbeat', slave.node), slave.joint, safety.KIND_HEARTBEAT_LOST,
+                        0.0, self.config.heartbeat_timeout,
+                        f'{slave.label}: booted (boot-up message) while running')
+
+    def _on_sdo(self, node: int, message: can.Message) -> None:
+        self._sdo_answers[node] = bytes(message.data)
+
+    def _on_emcy(self, joint: _Joint, is_drive: bool, message: can.Message) -> None:
+        data = message.data
+        if len(data) < 3 or not self._operational:
+            return
+        code = data[0] | (data[1] << 8)
+        if code == 0:
+            return  # "error reset or no error": a fault was cleared
+        name = cd.ERROR_CODES.get(code, 'unknown error')
+        if is_drive:
+            joint.emcy_code = code
+            self._latch(('drive', joint.config.name), joint.config.name,
+                        safety.KIND_DRIVE_FAULT, float(code), _NAN,
+                        f'{joint.drive.label}: EMCY 0x{code:04X} {name} (error register '
+                        f'0x{data[2]:02X})')
+        else:
+            self._latch(('emcy', joint.sensor.node), joint.config.name,
+                        safety.KIND_SENSOR_FAULT, float(code), _NAN,
+                        f'{joint.sensor.label}: EMCY 0x{code:04X} {name} (error register '
+                        f'0x{data[2]:02X})')
+
+    def _on_drive_tpdo(self, joint: _Joint, message: can.Message) -> None:
+        if len(message.data) != cd.DRIVE_TPDO1.size:
+            return
+        status, joint.velocity, joint.current = cd.DRIVE_TPDO1.unpack(message.data)
+        joint.state = cia402.decode_state(status)
+        joint.drive.seen = True
+        self._received(joint, _DRIVE_TPDO)
+
+    def _on_sensor_tpdo1(self, joint: _Joint, message: can.Message) -> None:
+        if len(message.data) != cd.SENSOR_TPDO1.size:
+            return
+        joint.position, joint.pressure_a, joint.pressure_b = cd.SENSOR_TPDO1.unpack(
+            message.data)
+        joint.stamp = message.timestamp
+        joint.sensor.seen = True
+        self._received(joint, _SENSOR_TPDO1)
+
+    def _on_sensor_tpdo2(self, joint: _Joint, message: can.Message) -> None:
+        if len(message.data) != cd.SENSOR_TPDO2.size:
+            return
+        joint.velocity_sensor, joint.status, joint.counter = cd.SENSOR_TPDO2.unpack(
+            message.data)
+        joint.sensor.seen = True
+        self._received(joint, _SENSOR_TPDO2)
+
+    def _received(self, joint: _Joint, which: int) -> None:
+        """Note a TPDO; once a joint's three are in, queue its sample."""
+        joint.received |= which
+        if joint.received != _ALL_TPDOS:
+            return
+        joint.received = 0
+        config = joint.config
+        values = decode_sensors(joint.position, joint.pressure_a, joint.pressure_b,
+                                joint.velocity_sensor, joint.status, config.stroke)
+        fault = values.fault
+        joint.fault = fault
+        key = ('sensor', config.name)
+        if fault is not None:
+            self._latch(key, config.name, safety.KIND_SENSOR_FAULT, fault.value, fault.limit,
+                        f'{joint.sensor.label}: {fault.text}')
+        else:
+            self._active.discard(key)
+        units = self._units
+        speed = units.velocity_from_drive(joint.velocity)
+        self._samples.append(JointSample(
+            config.name, joint.stamp, values.position, values.velocity, values.pressure_a,
+            values.pressure_b, speed, units.velocity_from_drive(joint.target),
+            units.current_from_drive(joint.current),
+            infer_valve_mode(config, joint.state, speed, values.pressure_a, values.pressure_b),
+            joint.state, fault is not None, joint.counter))
+
+    # --- frames out ----------------------------------------------------------------------------
+    def _send(self, message: can.Message) -> bool:
+        try:
+            self.bus.send(message, timeout=self.config.period / 2)
+        except can.CanError as exc:
+            self._send_failed = (f'sending CAN frame 0x{message.arbitration_id:03X} failed: '
+                                 f'{exc}')
+            self._send_failed_sync = self._sync_count
+            return False
+        return True
+
+    def _send_nmt(self, command: int, node: int) -> None:
+        self._send(can.Message(arbitration_id=cd.NMT_COB_ID, data=bytes((command, node)),
+                               is_extended_id=False))
+
+    def _produce_heartbeat(self, now: float) -> None:
+        due = self._heartbeat_due
+        if due is None or now < due:
+            return
+        self._send(self._heartbeat)
+        period = self.config.heartbeat_period
+        due += period
+        self._heartbeat_due = due if due > now else now + period
+
+    def _send_best_effort_stop(self) -> None:
+        """Send every drive quick stop at target 0 and a SYNC, ignoring send errors."""
+        for joint in self._joints:
+            cd.DRIVE_RPDO1.pack_into(joint.rpdo.data, 0, cd.CW_QUICK_STOP, 0)
+            self._send(joint.rpdo)
+        self._send(self._sync)
+
+    def _index(self, joint: str) -> int:
+        for index, candidate in enumerate(self._joints):
+            if candidate.config.name == joint:
+                return index
+        msg = f'joint {joint!r} is not on this bus: the master serves {", ".join(self.joints)}'
+        raise HardwareConfigError(msg)
+
+
+def _drain(queue: collections.deque[_T]) -> list[_T]:
+    items: list[_T] = []
+    while True:
+        try:
+            items.append(queue.popleft())
+        except IndexError:
+            return items
+
+
+def _nmt_name(state: int | None) -> str:
+    if state is None:
+        return 'none (no heartbeat)'
+    return _NMT_STATE_NAMES.get(state, f'0x{state:02X}')

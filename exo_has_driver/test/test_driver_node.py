@@ -1,0 +1,232 @@
+"""The driver node in a process against the simulated devices' process on udp_multicast."""
+
+import math
+import random
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import pytest
+
+from exo_has_runtime.profiles import SAFETY_EVENT_QOS
+from exo_has_runtime.standalone import (
+    Node,
+    SingleThreadedExecutor,
+    get_message,
+    qos_profile_sensor_data,
+)
+from exo_has_runtime.testing.processes import NodeProcess
+from exo_has_runtime.topics import (
+    SAFETY_EVENT_TOPIC,
+    SAFETY_RESET_TOPIC,
+    has_command_topic,
+    has_state_topic,
+)
+
+HasCommand = get_message('exo_has_msgs/msg/HasCommand')
+HasState = get_message('exo_has_msgs/msg/HasState')
+SafetyEvent = get_message('exo_has_msgs/msg/SafetyEvent')
+Empty = get_message('std_msgs/msg/Empty')
+
+DRIVER = 'exo_has_driver.driver_node'
+JOINTS = ('left_hip', 'right_knee')
+PERIOD = 0.005
+WAIT = 5.0  # s: four Python processes share two cores
+
+
+def bus_args(group):
+    return ['--ros-args', '-p', 'interface:=udp_multicast', '-p', f'channel:={group}',
+            '-p', f'joints:=[{",".join(JOINTS)}]']
+
+
+class Devices:
+    """The simulated devices' process, with its stdin for fault injection."""
+
+    def __init__(self, group):
+        self.log = tempfile.NamedTemporaryFile(prefix='can_devices-', suffix='.log',
+                                               delete=False)
+        self.process = subprocess.Popen(
+            [sys.executable, '-u', '-m', 'exo_has_driver.devices.main', '--interface',
+             'udp_multicast', '--channel', group, '--joints', *JOINTS],
+            stdin=subprocess.PIPE, stdout=self.log, stderr=subprocess.STDOUT, text=True,
+            cwd=tempfile.gettempdir())
+
+    @property
+    def output(self):
+        """Everything the process wrote so far."""
+        return Path(self.log.name).read_text(encoding='utf-8', errors='replace')
+
+    def wait_for(self, text, timeout=20.0):
+        """Wait until the output contains ``text``."""
+        deadline = time.monotonic() + timeout
+        while text not in self.output:
+            assert self.process.poll() is None and time.monotonic() < deadline, self.output
+            time.sleep(0.05)
+
+    def inject(self, line):
+        """Send one fault injection command."""
+        self.process.stdin.write(line + '\n')
+        self.process.stdin.flush()
+
+    def stop(self):
+        """End the process (SIGINT, then SIGKILL)."""
+        if self.process.poll() is None:
+            self.process.send_signal(2)
+            try:
+                self.process.wait(timeout=5.0)
+            except subprocess.TimeoutExpired:
+                self.process.kill()
+                self.process.wait()
+        self.process.stdin.close()
+        self.log.close()
+
+
+class Peers:
+    """The driver's peers in the test process: controllers, the watchdog, a listener."""
+
+    def __init__(self, context):
+        self.node = Node('driver_peers', context=context)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+        self.speeds = dict.fromkeys(JOINTS, 0.0)
+        self.states = {joint: [] for joint in JOINTS}
+        self.events = []
+        self.commands = {j: self.node.create_publisher(HasCommand, has_command_topic(j),
+                                                       qos_profile_sensor_data) for j in JOINTS}
+        for joint in JOINTS:
+            self.node.create_subscription(HasState, has_state_topic(joint),
+                                          self.states[joint].append, qos_profile_sensor_data)
+        self.node.create_subscription(SafetyEvent, SAFETY_EVENT_TOPIC, self.events.append,
+                                      SAFETY_EVENT_QOS)
+        self.watchdog = self.node.create_publisher(SafetyEvent, SAFETY_EVENT_TOPIC,
+                                                   SAFETY_EVENT_QOS)
+        self.reset_publisher = self.node.create_publisher(Empty, SAFETY_RESET_TOPIC, 10)
+
+    def run(self, seconds, until=None):
+        """Command every joint every 5 ms for ``seconds`` or until ``until()``."""
+        deadline = time.monotonic() + seconds
+        next_publish = time.monotonic()
+        while True:
+            now = time.monotonic()
+            if until is not None and until():
+                return True
+            if now >= deadline:
+                return until() if until is not None else None
+            if now >= next_publish:
+                for joint, publisher in self.commands.items():
+                    publisher.publish(HasCommand(joint=joint, motor_speed=self.speeds[joint],
+                                                 enable=True))
+                next_publish += PERIOD
+            self.executor.spin_once(timeout_sec=max(0.0, min(next_publish, deadline) - now))
+
+    def event(self, kind, after=0):
+        """Return the first event of ``kind`` among the events from index ``after``."""
+        return next((e for e in self.events[after:] if e.kind == kind), None)
+
+    def wait_event(self, kind, after=0):
+        """Run until an event of ``kind`` arrives; return it."""
+        assert self.run(WAIT, lambda: self.event(kind, after) is not None), \
+            [e.text for e in self.events]
+        return self.event(kind, after)
+
+    def speeds_near(self, speed, tolerance):
+        """Whether every joint's newest state reports a motor speed near ``speed``."""
+        return all(states and abs(states[-1].motor_speed - speed) < tolerance
+                   for states in self.states.values())
+
+
+@pytest.fixture
+def group():
+    rng = random.SystemRandom()
+    return f'239.74.{rng.randint(1, 254)}.{rng.randint(1, 254)}'
+
+
+def test_the_driver_moves_the_joints_stops_on_the_watchdog_and_on_a_drive_fault(ros_context,
+                                                                                group):
+    devices = Devices(group)
+    try:
+        devices.wait_for('can devices ready')
+        with NodeProcess(DRIVER, bus_args(group)) as driver:
+            driver.wait_for_output(r'driver ready: left_hip, right_knee on udp_multicast',
+                                   timeout_s=20.0)
+            peers = Peers(ros_context)
+            assert peers.run(WAIT, lambda: all(
+                p.get_subscription_count() for p in peers.commands.values())
+                and peers.reset_publisher.get_subscription_count()), driver.output
+
+            # Commands reach the motors, states come back at about the SYNC rate.
+            peers.speeds = dict.fromkeys(JOINTS, -20.0)
+            assert peers.run(WAIT, lambda: peers.speeds_near(-20.0, 1.0)), driver.output
+            for states in peers.states.values():
+                states.clear()
+            peers.run(1.0)
+            for joint, states in peers.states.items():
+                # 200 per second; the loaded machine may lose some.
+                assert len(states) >= 100, (joint, len(states))
+                last = states[-1]
+                assert last.joint == joint
+                assert last.motor_speed_command == pytest.approx(-20.0, abs=1e-3)
+                assert last.valve_mode == HasState.VALVE_ASSIST
+                assert math.isnan(last.load_force)
+                stamp = last.header.stamp.sec + last.header.stamp.nanosec * 1e-9
+                assert stamp == pytest.approx(time.time(), abs=1.0)
+            assert peers.events == [], [e.text for e in peers.events]
+
+            # A FATAL latched event of the watchdog is an e-stop: every motor stops.
+            stop = SafetyEvent(kind=SafetyEvent.KIND_STALE_STATE,
+                               severity=SafetyEvent.SEVERITY_FATAL, latched=True,
+                               joint='left_hip', value=0.2, limit=0.1,
+                               text='left_hip: stale state (test)')
+            stop.header.stamp.sec = int(time.time()) + 1
+            peers.watchdog.publish(stop)
+            event = peers.wait_event(SafetyEvent.KIND_E_STOP)
+            assert (event.severity, event.latched) == (SafetyEvent.SEVERITY_FATAL, True)
+            assert event.text == 'emergency stop: left_hip: stale state (test)'
+            assert peers.run(WAIT, lambda: peers.speeds_near(0.0, 0.5))
+            peers.run(0.3)
+            assert all(s[-1].valve_mode == HasState.VALVE_FREE for s in peers.states.values())
+            # The driver does not take its own E_STOP event for another e-stop.
+            assert [e.kind for e in peers.events].count(SafetyEvent.KIND_E_STOP) == 1
+
+            # A reset releases the stop; the commands move the motors again.
+            count = len(peers.events)
+            peers.reset_publisher.publish(Empty())
+            event = peers.wait_event(SafetyEvent.KIND_RESET, count)
+            assert (event.severity, event.latched) == (SafetyEvent.SEVERITY_INFO, False)
+            assert peers.run(WAIT, lambda: peers.speeds_near(-20.0, 1.0))
+
+            # A drive fault in the devices' process: DRIVE_FAULT with its code, all stopped.
+            count = len(peers.events)
+            devices.inject('fault right_knee 0x4310')
+            event = peers.wait_event(SafetyEvent.KIND_DRIVE_FAULT, count)
+            assert (event.joint, event.value, event.latched) == ('right_knee', 0x4310, True)
+            assert 'drive over-temperature' in event.text
+            assert peers.run(WAIT, lambda: peers.speeds_near(0.0, 0.5))
+
+            assert driver.stop() == 0
+            assert 'Traceback' not in driver.output, driver.output
+        # The driver stopped the motors on its way out; without its heartbeat the drives then
+        # fault (8130h), as the specification wants.
+        devices.inject('status')
+        devices.wait_for('left_hip drive 1:')
+        assert re.search(r'left_hip drive 1: operational, (switch on disabled|fault), .*motor '
+                         r'-?0\.0 rad/s', devices.output), devices.output
+    finally:
+        devices.stop()
+
+
+@pytest.mark.parametrize(('override', 'message'), [
+    ('joints:=[left_hip,left_ankle]',
+     "cannot start: parameter joints: unknown joint 'left_ankle': expected one of left_hip"),
+    ('params_knee:=hip', 'cannot start: parameter params_knee: hip is a hip parameter set'),
+    ('missing_syncs:=0', r"cannot start: parameter 'missing_syncs' .* outside"),
+])
+def test_a_bad_setting_ends_the_driver_at_start_naming_it(override, message):
+    # The bus is opened after the parameters are checked: nothing is sent.
+    with NodeProcess(DRIVER, ['--ros-args', '-p', override]) as driver:
+        assert driver.wait(timeout_s=30.0) == 1
+        driver.wait_for_output(message, timeout_s=0.1)
+        assert 'Traceback' not in driver.output
