@@ -1,8 +1,10 @@
 """``exo-has demo``: a walking-then-squatting session of the simulated exoskeleton, reported.
 
-Four HAS plants, the PD controller, the gait publisher, the safety watchdog and the recorder
-run as separate processes (no launch file) for about 20 s; the bag goes under ``bags/`` and a
-Markdown report with PNG plots next to it. The last line printed is the report's path.
+Four HAS plants (or, with ``--hardware can``, the hardware driver in front of simulated CAN
+drives and sensor boards), the PD controller, the gait publisher, the safety watchdog and the
+recorder run as separate processes (no launch file) for about 20 s; the bag goes under
+``bags/`` and a Markdown report with PNG plots next to it. The last line printed is the
+report's path.
 """
 
 from __future__ import annotations
@@ -32,7 +34,9 @@ def run(config: SessionConfig, folder: Path) -> Path:
     """Run a session into folder, write its report; return the report's path."""
     trials = ', '.join(f'{m} {d:g} s'
                        for m, d in zip(config.motions, config.durations, strict=True))
-    print(f'exo-has demo: {trials} at {config.rate:g} Hz into {folder}', flush=True)
+    joints = ('the hardware driver on simulated CAN devices' if config.hardware == 'can'
+              else 'four plant nodes')
+    print(f'exo-has demo: {trials} at {config.rate:g} Hz, {joints}, into {folder}', flush=True)
     print(f'plant model ready in {warm_up():.1f} s (compiled once, then cached)', flush=True)
     session = Session(config, folder)
     session.start(show=lambda line: print(f'  {line}', flush=True))
@@ -62,13 +66,18 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="plant and reference rate in Hz (200, the paper's)")
     parser.add_argument('--output', type=Path, default=Path('bags'),
                         help='folder for the session folder (bags/)')
+    parser.add_argument('--hardware', choices=['plants', 'can'], default='plants',
+                        help='what moves the joints: plant nodes (plants), or the hardware '
+                             'driver on a simulated CAN bus with simulated drives and sensor '
+                             'boards (can)')
     args = parser.parse_args(argv)
     if len(args.motions) != len(args.durations):
         parser.error('give one duration per motion')
     if any(not d > 0 for d in args.durations) or not 1.0 <= args.rate <= 2000.0:
         parser.error('durations must be positive and the rate within 1 to 2000 Hz')
     folder = (args.output / f'demo_{datetime.now():%Y%m%d_%H%M%S}').resolve()
-    config = SessionConfig(tuple(args.motions), tuple(args.durations), args.rate)
+    config = SessionConfig(tuple(args.motions), tuple(args.durations), args.rate,
+                           hardware=args.hardware)
     report = run(config, folder)
     print(f'exo-has demo: bag {folder / "bag"}')
     print(report)

@@ -1,7 +1,8 @@
 """An exoskeleton session without launch files: every node its own process, recorded to a bag.
 
-:class:`Session` starts the recorder, the four plants, the watchdog, the PD controller and,
-last, the gait publisher (whose first reference starts the trials), each with
+:class:`Session` starts the recorder, the joints (four plant nodes; or, with ``hardware='can'``,
+the simulated CAN devices and the hardware driver in front of them), the watchdog, the PD
+controller and, last, the gait publisher (whose first reference starts the trials), each with
 :class:`~exo_has_runtime.testing.processes.NodeProcess` and its log in the session folder; it
 stops them in the reverse order (SIGINT, then SIGTERM, then SIGKILL), the recorder last, so the
 bag holds the whole session and is closed cleanly. The demo (``exo-has demo``) and the
@@ -10,6 +11,7 @@ integration tests run sessions.
 
 from __future__ import annotations
 
+import random
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -29,6 +31,15 @@ from exo_has_sim.plant import joint_type_of
 
 #: Time allowed for a node to report ready [s]; a plant's first start compiles the model.
 READY_TIMEOUT = 120.0
+
+#: What moves the joints: plant nodes, or simulated CAN devices behind the hardware driver.
+HARDWARE = ('plants', 'can')
+
+
+def random_can_group() -> str:
+    """Draw a multicast group for one session's simulated CAN bus, in 239.74.0.0/16."""
+    draw = random.SystemRandom()
+    return f'239.74.{draw.randint(0, 255)}.{draw.randint(1, 254)}'
 
 
 def recorded_topics(with_loads: bool = False) -> list[str]:
@@ -79,6 +90,13 @@ class SessionConfig:
     stale_periods : int
         Control periods without a state or command before the watchdog stops everything: 40
         (200 ms at 200 Hz): eleven Python processes on two shared cores see gaps over 100 ms.
+    hardware : str
+        ``'plants'``: one plant node per joint. ``'can'``: the hardware driver on a simulated
+        CAN bus (python-can's udp_multicast) with the simulated drives and sensor boards of
+        every joint in one process (``exo_has_driver.devices``), as on the robot.
+    can_channel : str
+        Multicast group of the simulated CAN bus; empty: a random one per session, so that
+        sessions on one machine do not share a bus.
 
     """
 
@@ -91,6 +109,13 @@ class SessionConfig:
     start_delay: float = 2.0
     stale_periods: int = 40
     load_mass: dict[str, float] = field(default_factory=lambda: {'hip': 50.0, 'knee': 25.0})
+    hardware: str = 'plants'
+    can_channel: str = ''
+
+    def __post_init__(self) -> None:
+        if self.hardware not in HARDWARE:
+            msg = f'unknown hardware {self.hardware!r}: expected one of {", ".join(HARDWARE)}'
+            raise ValueError(msg)
 
     @property
     def duration(self) -> float:
@@ -106,24 +131,34 @@ def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
         specs.append(NodeSpec('recorder', 'exo_has_runtime.recorder', (
             '--ros-args', '-p', f'output:={bag}', '-p', f'topics:=[{topics}]'),
             ready=r'recording', stage=0))
-    for joint in JOINT_NAMES:
-        specs.append(NodeSpec(f'{joint}_plant', 'exo_has_sim.plant_node', (
-            '--ros-args', '-r', f'__node:={joint}_plant', '-p', f'joint:={joint}',
-            '-p', f'rate:={config.rate}',
-            '-p', f'load_mass:={config.load_mass[joint_type_of(joint)]}',
-            *config.plant_arguments.get(joint, ())),
-            ready=r'plant ready'))
+    if config.hardware == 'can':
+        channel = config.can_channel or random_can_group()
+        specs.append(NodeSpec('can_devices', 'exo_has_driver.devices.main', (
+            '--interface', 'udp_multicast', '--channel', channel,
+            '--load-mass-hip', f'{config.load_mass["hip"]}',
+            '--load-mass-knee', f'{config.load_mass["knee"]}'), ready=r'can devices ready'))
+        specs.append(NodeSpec('driver', 'exo_has_driver.driver_node', (
+            '--ros-args', '-p', 'interface:=udp_multicast', '-p', f'channel:={channel}',
+            '-p', f'rate:={config.rate}'), ready=r'driver ready', stage=2))
+    else:
+        for joint in JOINT_NAMES:
+            specs.append(NodeSpec(f'{joint}_plant', 'exo_has_sim.plant_node', (
+                '--ros-args', '-r', f'__node:={joint}_plant', '-p', f'joint:={joint}',
+                '-p', f'rate:={config.rate}',
+                '-p', f'load_mass:={config.load_mass[joint_type_of(joint)]}',
+                *config.plant_arguments.get(joint, ())),
+                ready=r'plant ready'))
     specs.append(NodeSpec('pd_controller', 'exo_has_control.pd_controller', (),
                           ready=r'controller ready'))
     specs.append(NodeSpec('watchdog', 'exo_has_driver.watchdog', (
         '--ros-args', '-p', f'rate:={config.rate}', '-p', f'control_rate:={config.rate}',
-        '-p', f'stale_periods:={config.stale_periods}'), stage=2))
+        '-p', f'stale_periods:={config.stale_periods}'), stage=3))
     motions = ','.join(f"'{m}'" for m in config.motions)
     durations = ','.join(f'{float(d)}' for d in config.durations)
     specs.append(NodeSpec('gait_publisher', 'exo_has_control.gait_publisher', (
         '--ros-args', '-p', f'motions:=[{motions}]', '-p', f'durations:=[{durations}]',
         '-p', f'rate:={config.rate}', '-p', f'start_delay:={config.start_delay}'),
-        ready=r'gait publisher ready', stage=3))
+        ready=r'gait publisher ready', stage=4))
     return specs
 
 
@@ -170,9 +205,11 @@ class Session:
             for stage in sorted({spec.stage for spec in specs}):
                 group = [spec for spec in specs if spec.stage == stage]
                 for spec in group:
+                    # The simulated devices take fault injections on their standard input.
                     self.processes[spec.name] = NodeProcess(
                         spec.module, spec.arguments, env=self.env,
-                        log_path=self.logs / f'{spec.name}.log')
+                        log_path=self.logs / f'{spec.name}.log',
+                        stdin=spec.name == 'can_devices')
                     show(f'started {spec.name} (pid {self.processes[spec.name].process.pid})')
                 for spec in group if stage > 0 else ():
                     self.processes[spec.name].wait_for_output(spec.ready, READY_TIMEOUT)

@@ -8,15 +8,15 @@ message naming it), then logs ``driver ready``::
     ros2 run exo_has_driver driver --ros-args -p interface:=socketcan -p channel:=can0
 
 Threads: the master runs its own I/O thread, which alone owns the bus, sends the SYNC at
-``rate`` and supervises the slaves; this node's timer, at the same rate, hands the newest
-commands to the master and publishes the states and events that came in. The SYNC must not
-jitter with the executor (DDS traffic, logging, garbage collection: a drive applies its RPDO at
-the SYNC), and a fault must stop the motors even if this process's executor is held up, so
-neither may wait for a callback. The node is paced by its timer (``spin_paced``): on the
-standalone backend it takes the commands that arrived since the last tick just before it, one
-wake-up per tick instead of one per message, at the price of up to one period between a
-command's arrival and the SYNC that applies it, and between a sample and its publication, as
-the simulated plant's node has.
+``rate`` and supervises the slaves: the SYNC must not jitter with the executor (DDS traffic,
+logging, garbage collection: a drive applies its RPDO at the SYNC), and a fault must stop the
+motors even if this process's executor is held up. The node hands each command to the master
+as it arrives (``spin``, one wake-up per command: the master writes the newest at its next
+SYNC), and its timer, at the same rate, publishes the states and events that came in. A
+state's sample is thus published within a period of its SYNC, and the command it provokes is
+applied at the first SYNC after the command arrives: one period of loop delay, as the plant
+node gives, where handing commands over at the timer (``spin_paced``) doubled it and made the
+knees overshoot into their end stops on a loaded machine.
 
 Topics: ``<joint>/has_command`` in (``qos_profile_sensor_data``), ``<joint>/has_state`` out
 (stamped with the hardware receive time of the sensor board's TPDO; the load force is not
@@ -49,6 +49,7 @@ from exo_has_driver.hardware.master import (
     MasterConfig,
 )
 from exo_has_driver.hardware.units import DriveUnits
+from exo_has_driver.node_parameters import checked_joints, joint_type_parameters
 from exo_has_runtime import (
     STARTUP_ERRORS,
     ExternalShutdownException,
@@ -60,7 +61,7 @@ from exo_has_runtime import (
     get_message,
     init,
     qos_profile_sensor_data,
-    spin_paced,
+    spin,
     try_shutdown,
 )
 from exo_has_runtime.profiles import SAFETY_EVENT_QOS
@@ -68,11 +69,10 @@ from exo_has_runtime.topics import (
     JOINT_NAMES,
     SAFETY_EVENT_TOPIC,
     SAFETY_RESET_TOPIC,
-    check_joint,
     has_command_topic,
     has_state_topic,
 )
-from exo_has_sim.parameters import HasParameters, load_parameters
+from exo_has_sim.plant import joint_type_of
 
 HasCommand = get_message('exo_has_msgs/msg/HasCommand')
 HasState = get_message('exo_has_msgs/msg/HasState')
@@ -147,16 +147,17 @@ class Driver(Node):
         sources = {kind: declare(f'params_{kind}', kind, read_only(
             f'{kind} HAS parameter set (stroke, relief and valve settings): {kind} or a '
             'parameters YAML file')).value for kind in ('hip', 'knee')}
-        self._joints = _checked_joints(joints)
+        self._joints = checked_joints(joints, HardwareConfigError)
         ids = {joint: (declare(f'{joint}.drive_id', cd.DRIVE_NODE_IDS[joint], read_only(
             f'CANopen node ID of the {joint} drive', integer_range=_integers(1, 127))).value,
                        declare(f'{joint}.sensor_id', cd.SENSOR_NODE_IDS[joint], read_only(
             f'CANopen node ID of the {joint} sensor board',
             integer_range=_integers(1, 127))).value)
                for joint in self._joints}
-        params = {kind: _load(kind, source) for kind, source in sources.items()}
+        params = {kind: joint_type_parameters(kind, source, HardwareConfigError)
+                  for kind, source in sources.items()}
         config = MasterConfig(
-            tuple(JointConfig.from_parameters(joint, params[_kind(joint)], *ids[joint])
+            tuple(JointConfig.from_parameters(joint, params[joint_type_of(joint)], *ids[joint])
                   for joint in self._joints),
             units=DriveUnits(encoder_counts, gear_ratio, velocity_unit, current_unit),
             period=1.0 / rate, heartbeat_period=heartbeat_period,
@@ -274,62 +275,13 @@ def _state(sample: JointSample) -> HasState:
     return state
 
 
-def _checked_joints(joints: list[str]) -> list[str]:
-    """Return the joints if each is known and given once.
-
-    Raises
-    ------
-    HardwareConfigError
-        Naming the parameter and the joint at fault.
-
-    """
-    if not joints:
-        msg = f'parameter joints is empty: give some of {", ".join(JOINT_NAMES)}'
-        raise HardwareConfigError(msg)
-    for joint in joints:
-        try:
-            check_joint(joint)
-        except ValueError as exc:
-            msg = f'parameter joints: {exc}'
-            raise HardwareConfigError(msg) from None
-    if len(set(joints)) != len(joints):
-        msg = f'parameter joints names a joint twice: {joints}'
-        raise HardwareConfigError(msg)
-    return joints
-
-
-def _kind(joint: str) -> str:
-    """``'hip'`` or ``'knee'`` for a known joint name."""
-    return joint.rsplit('_', 1)[-1]
-
-
-def _load(kind: str, source: str) -> HasParameters:
-    """Load the parameter set of parameter ``params_<kind>``, checking its joint type.
-
-    Raises
-    ------
-    HardwareConfigError
-        Naming the parameter, if the set cannot be loaded or is of the other joint type.
-
-    """
-    try:
-        params = load_parameters(source)
-    except ValueError as exc:
-        msg = f'parameter params_{kind}: {exc}'
-        raise HardwareConfigError(msg) from None
-    if params.joint_type != kind:
-        msg = f'parameter params_{kind}: {source} is a {params.joint_type} parameter set'
-        raise HardwareConfigError(msg)
-    return params
-
-
 def main(args: list[str] | None = None) -> None:
     """Run the driver until interrupted."""
     init(args=args)
     node = None
     try:
         node = Driver()
-        spin_paced(node)
+        spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except STARTUP_ERRORS as exc:

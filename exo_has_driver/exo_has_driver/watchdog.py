@@ -19,6 +19,7 @@ from functools import partial
 
 from exo_has_driver import safety
 from exo_has_driver.errors import SafetyConfigError
+from exo_has_driver.node_parameters import checked_joints, joint_type_parameters
 from exo_has_runtime import (
     STARTUP_ERRORS,
     ExternalShutdownException,
@@ -41,11 +42,10 @@ from exo_has_runtime.topics import (
     JOINT_REFERENCE_TOPIC,
     SAFETY_EVENT_TOPIC,
     SAFETY_RESET_TOPIC,
-    check_joint,
     has_command_topic,
     has_state_topic,
 )
-from exo_has_sim.parameters import HasParameters, load_parameters
+from exo_has_sim.plant import joint_type_of
 
 HasCommand = get_message('exo_has_msgs/msg/HasCommand')
 HasState = get_message('exo_has_msgs/msg/HasState')
@@ -107,10 +107,11 @@ class Watchdog(Node):
         sources = {kind: declare(f'params_{kind}', kind, ParameterDescriptor(
             description=f'{kind} HAS parameter set: hip, knee or a parameters YAML file',
             read_only=True)).value for kind in ('hip', 'knee')}
-        self._joints = _checked_joints(joints)
-        params = {kind: _load(kind, source) for kind, source in sources.items()}
+        self._joints = checked_joints(joints, SafetyConfigError)
+        params = {kind: joint_type_parameters(kind, source, SafetyConfigError)
+                  for kind, source in sources.items()}
         self._limits = {joint: safety.SafetyLimits.from_parameters(
-            params[_kind(joint)], over_pressure_ratio=ratio, stroke_margin=margin,
+            params[joint_type_of(joint)], over_pressure_ratio=ratio, stroke_margin=margin,
             tracking_error_limit=tracking_limit, tracking_error_time=tracking_time,
             stale_periods=stale_periods, control_rate=control_rate, startup_grace=grace)
             for joint in self._joints}
@@ -264,55 +265,6 @@ class Watchdog(Node):
             command = HasCommand(joint=joint, motor_speed=0.0, enable=False)
             command.header.stamp = now.to_msg()
             publisher.publish(command)
-
-
-def _checked_joints(joints: list[str]) -> list[str]:
-    """Return the joints if each is known and given once.
-
-    Raises
-    ------
-    SafetyConfigError
-        Naming the parameter and the joint at fault.
-
-    """
-    if not joints:
-        msg = f'parameter joints is empty: give some of {", ".join(JOINT_NAMES)}'
-        raise SafetyConfigError(msg)
-    for joint in joints:
-        try:
-            check_joint(joint)
-        except ValueError as exc:
-            msg = f'parameter joints: {exc}'
-            raise SafetyConfigError(msg) from None
-    if len(set(joints)) != len(joints):
-        msg = f'parameter joints names a joint twice: {joints}'
-        raise SafetyConfigError(msg)
-    return joints
-
-
-def _kind(joint: str) -> str:
-    """``'hip'`` or ``'knee'`` for a known joint name."""
-    return joint.rsplit('_', 1)[-1]
-
-
-def _load(kind: str, source: str) -> HasParameters:
-    """Load the parameter set of parameter ``params_<kind>`` and check it is one of that kind.
-
-    Raises
-    ------
-    SafetyConfigError
-        Naming the parameter, if the set cannot be loaded or is of the other joint type.
-
-    """
-    try:
-        params = load_parameters(source)
-    except ValueError as exc:
-        msg = f'parameter params_{kind}: {exc}'
-        raise SafetyConfigError(msg) from None
-    if params.joint_type != kind:
-        msg = f'parameter params_{kind}: {source} is a {params.joint_type} parameter set'
-        raise SafetyConfigError(msg)
-    return params
 
 
 def main(args: list[str] | None = None) -> None:

@@ -1,0 +1,120 @@
+"""Benchmark: tracking of the closed loop through plant nodes and through the CAN driver.
+
+The same walking-then-squatting session (PD controller, gait publisher, watchdog, recorder)
+runs with the joints as plant nodes (issue 4) and as simulated COPLEY-like drives and sensor
+boards behind the hardware driver on a udp_multicast CAN bus (issue 6), the two taking turns
+``--repeats`` times. For each joint and trial it reports the tracking error (actual minus
+reference joint angle, deg: RMS, minimum, maximum; the median over the repeats) side by side,
+with the whole system's CPU share (percent of one core, /proc over the middle of the trials)
+and the FATAL events.
+
+Run: ``.venv/bin/python bench/closed_loop.py [--repeats 3]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import random
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(100, 200)))
+os.environ.pop('CYCLONEDDS_URI', None)
+os.environ['EXO_HAS_BACKEND'] = 'standalone'
+
+from exo_has_control.analysis import read_session, tracking
+from exo_has_control.report import segments_of
+from exo_has_control.session import Session, SessionConfig
+
+RESULTS = Path(__file__).resolve().parent / 'results'
+TICK = os.sysconf('SC_CLK_TCK')
+MOTIONS, DURATIONS = ('walk', 'squat'), (10.0, 8.0)
+
+
+def cpu_seconds(pid: int) -> float:
+    """User plus system CPU time of a process [s]."""
+    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / TICK
+
+
+def run(hardware: str, folder: Path) -> dict[str, Any]:
+    """One session; return its tracking rows, CPU share and FATAL events."""
+    session = Session(SessionConfig(MOTIONS, DURATIONS, hardware=hardware), folder)
+    session.start(show=lambda line: None)
+    total = sum(DURATIONS)
+    try:
+        assert session.started_at is not None
+        time.sleep(max(0.0, session.started_at - time.monotonic()) + 0.2 * total)
+        before = {name: cpu_seconds(p.process.pid) for name, p in session.processes.items()}
+        t0 = time.monotonic()
+        time.sleep(0.6 * total)
+        span = time.monotonic() - t0
+        after = {name: cpu_seconds(p.process.pid) for name, p in session.processes.items()}
+        time.sleep(max(0.0, session.started_at + total + 0.5 - time.monotonic()))
+    finally:
+        session.stop()
+    assert session.bag is not None
+    data = read_session(session.bag)
+    rows = tracking(data, segments_of(MOTIONS, DURATIONS))
+    return {
+        'hardware': hardware,
+        'tracking_deg': {f'{r.joint} {r.segment}': {'rms': r.rms, 'min': r.minimum,
+                                                     'max': r.maximum} for r in rows},
+        'cpu_percent': {name: round(100.0 * (after[name] - before[name]) / span, 1)
+                        for name in before},
+        'fatal_events': sum(1 for e in data.events if e.severity >= 3),
+    }
+
+
+def main() -> None:
+    """Run the sessions and write bench/results/closed_loop.{json,txt}."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--repeats', type=int, default=3)
+    args = parser.parse_args()
+    runs = []
+    with tempfile.TemporaryDirectory() as scratch:
+        for repeat in range(args.repeats):
+            for hardware in ('plants', 'can'):
+                runs.append(run(hardware, Path(scratch) / f'{hardware}_{repeat}'))
+                print(json.dumps(runs[-1]), flush=True)
+    machine = {'cpus': os.cpu_count(), 'machine': platform.machine(),
+               'python': platform.python_version(), 'kernel': platform.release()}
+    medians: dict[str, dict[str, dict[str, float]]] = {}
+    for hardware in ('plants', 'can'):
+        mine = [r for r in runs if r['hardware'] == hardware]
+        rows = [r['tracking_deg'] for r in mine]
+        medians[hardware] = {key: {stat: float(np.median([row[key][stat] for row in rows]))
+                                   for stat in ('rms', 'min', 'max')} for key in rows[0]}
+        medians[hardware]['system'] = {
+            'cpu_percent': float(np.median([sum(r['cpu_percent'].values()) for r in mine])),
+            'fatal_events': float(sum(r['fatal_events'] for r in mine))}
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / 'closed_loop.json').write_text(
+        json.dumps({'machine': machine, 'medians': medians, 'runs': runs}, indent=1) + '\n')
+    lines = [f'bench/closed_loop.py --repeats {args.repeats}: {machine}',
+             'tracking error [deg], median over the repeats: plant nodes | CAN driver',
+             f'{"joint trial":24s} {"rms":>6s} {"min":>6s} {"max":>6s} | '
+             f'{"rms":>6s} {"min":>6s} {"max":>6s}']
+    for key in medians['plants']:
+        if key == 'system':
+            continue
+        p, c = medians['plants'][key], medians['can'][key]
+        lines.append(f'{key:24s} {p["rms"]:6.2f} {p["min"]:6.2f} {p["max"]:6.2f} | '
+                     f'{c["rms"]:6.2f} {c["min"]:6.2f} {c["max"]:6.2f}')
+    for hardware in ('plants', 'can'):
+        system = medians[hardware]['system']
+        lines.append(f'{hardware}: whole system {system["cpu_percent"]:.1f} % of one core '
+                     f'(median), FATAL events in all runs: {system["fatal_events"]:.0f}')
+    (RESULTS / 'closed_loop.txt').write_text('\n'.join(lines) + '\n')
+    print('\n'.join(lines))
+
+
+if __name__ == '__main__':
+    main()

@@ -1,0 +1,101 @@
+"""A node in a test process that watches a running session: events, commands, states.
+
+It publishes loads and resets too. Shared by the integration tests of sessions.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import defaultdict
+
+from exo_has_runtime.profiles import SAFETY_EVENT_QOS
+from exo_has_runtime.topics import (
+    JOINT_NAMES,
+    SAFETY_EVENT_TOPIC,
+    SAFETY_RESET_TOPIC,
+    has_command_topic,
+    has_state_topic,
+    load_force_topic,
+)
+
+
+class Observer:
+    """A node in the test process: watches events and commands, publishes loads and resets."""
+
+    def __init__(self) -> None:
+        from exo_has_runtime.standalone import (
+            Context,
+            Node,
+            QoSProfile,
+            ReliabilityPolicy,
+            SingleThreadedExecutor,
+            get_message,
+            qos_profile_sensor_data,
+        )
+
+        self.context = Context()
+        self.context.init(['observer'])
+        self.node = Node('test_observer', context=self.context)
+        self.events: list[tuple[float, object]] = []
+        self.commands: dict[str, list[tuple[float, float, bool]]] = defaultdict(list)
+        self.lock = threading.Lock()
+        event_type = get_message('exo_has_msgs/msg/SafetyEvent')
+        self.node.create_subscription(event_type, SAFETY_EVENT_TOPIC, self._on_event,
+                                      SAFETY_EVENT_QOS)
+        command_type = get_message('exo_has_msgs/msg/HasCommand')
+        state_type = get_message('exo_has_msgs/msg/HasState')
+        self.states: dict[str, list[tuple[float, object]]] = defaultdict(list)
+        for joint in JOINT_NAMES:
+            self.node.create_subscription(
+                command_type, has_command_topic(joint),
+                lambda c, j=joint: self._on_command(j, c), qos_profile_sensor_data)
+            self.node.create_subscription(
+                state_type, has_state_topic(joint),
+                lambda m, j=joint: self._on_state(j, m), qos_profile_sensor_data)
+        float64 = get_message('std_msgs/msg/Float64')
+        self.float64 = float64
+        self.loads = {j: self.node.create_publisher(float64, load_force_topic(j), 10)
+                      for j in JOINT_NAMES}
+        self.empty = get_message('std_msgs/msg/Empty')
+        self.reset = self.node.create_publisher(
+            self.empty, SAFETY_RESET_TOPIC,
+            QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _spin(self) -> None:
+        while self.context.ok():
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def _on_event(self, event: object) -> None:
+        with self.lock:
+            self.events.append((time.monotonic(), event))
+
+    def _on_command(self, joint: str, command: object) -> None:
+        with self.lock:
+            self.commands[joint].append((time.monotonic(), command.motor_speed,
+                                         command.enable))
+
+    def _on_state(self, joint: str, state: object) -> None:
+        with self.lock:
+            self.states[joint].append((time.monotonic(), state))
+
+    def wait_for(self, predicate, timeout: float) -> float:
+        """Wait until predicate() is true; return the monotonic time it became so."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            with self.lock:
+                found = predicate()
+            if found is not None:
+                return found
+            time.sleep(0.005)
+        msg = f'not within {timeout} s'
+        raise TimeoutError(msg)
+
+    def close(self) -> None:
+        """Shut the observer's context down."""
+        self.context.try_shutdown()
+        self._thread.join(timeout=2.0)

@@ -1,0 +1,138 @@
+"""The closed loop of a session through the hardware driver and simulated CAN devices.
+
+The same controller, gait publisher and watchdog as with the plant nodes, but the joints are
+the simulated COPLEY-like drives and sensor boards (``exo_has_driver.devices``, one process on
+a udp_multicast CAN bus) behind the hardware driver node. The session walks for 8 s and squats
+for 8 s, as ``test_session.py``; then faults are injected into the devices through their
+standard input. The tests run in file order and share the session.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import pytest
+from session_observer import Observer
+
+from exo_has_control.analysis import read_session, tracking
+from exo_has_control.report import segments_of
+from exo_has_control.session import Session, SessionConfig
+from exo_has_runtime.bag import recover_bag
+from exo_has_runtime.topics import JOINT_NAMES
+
+MOTIONS, DURATIONS = ('walk', 'squat'), (8.0, 8.0)
+RATE = 200.0
+# The plant-node loop's bounds (test_session.py), each 1 deg wider: the driver passes a command
+# on at its next tick and the drive applies it at the SYNC after, one period more than a plant.
+HIP_SQUAT_BAND = (-3.5, 4.5)  # deg
+HIP_WALK_PEAK = 6.0  # deg
+KNEE_PEAK = 26.0  # deg
+FAULT_BOUND = 0.25  # s: injection to the driver's FATAL event (a few 5 ms cycles + scheduling)
+STOP_BOUND = 0.5  # s: injection to every motor reported below STOPPED_SPEED
+STOPPED_SPEED = 2.0  # rad/s
+DRIVE_FAULT, HEARTBEAT_LOST, BUS_OFF, RESET = 8, 9, 10, 13
+FATAL = 3
+
+
+@pytest.fixture(scope='module')
+def session(tmp_path_factory):
+    config = SessionConfig(MOTIONS, DURATIONS, RATE, hardware='can')
+    folder = tmp_path_factory.mktemp('can_session')
+    running = Session(config, folder)
+    running.start(show=lambda line: None)
+    observer = Observer()
+    try:
+        running.run(show=lambda line: None, extra=1.0)
+        yield running, observer
+    finally:
+        observer.close()
+        running.stop()
+
+
+@pytest.fixture(scope='module')
+def recorded(session):
+    running, _observer = session
+    copy = Path(running.folder) / 'bag_so_far'
+    recover_bag(running.bag, copy)
+    return read_session(copy)
+
+
+def test_the_joints_track_through_the_driver_within_the_plant_loops_bounds_plus_a_degree(
+        recorded):
+    rows = tracking(recorded, segments_of(MOTIONS, DURATIONS))
+    assert len(rows) == 8
+    for row in rows:
+        if row.joint.endswith('hip') and row.segment.endswith('squat'):
+            assert HIP_SQUAT_BAND[0] <= row.minimum and row.maximum <= HIP_SQUAT_BAND[1], row
+        elif row.joint.endswith('hip'):
+            assert row.peak <= HIP_WALK_PEAK, row
+        else:
+            assert row.peak <= KNEE_PEAK, row
+
+
+def test_walking_and_squatting_through_the_driver_raise_no_fatal_event(recorded):
+    assert [e for e in recorded.events if e.severity >= FATAL] == []
+
+
+def test_the_driver_publishes_every_joints_state_at_the_sync_rate(recorded):
+    for joint in JOINT_NAMES:
+        t = recorded.states[joint]['t']
+        rate = (len(t) - 1) / (t[-1] - t[0])
+        assert rate == pytest.approx(RATE, rel=0.05), (joint, rate)
+
+
+def _fatal_after(observer: Observer, start: float, kinds: tuple[int, ...]):
+    def found():
+        for t, event in observer.events:
+            if t >= start and event.kind in kinds and event.severity == FATAL:
+                return t
+        return None
+    return found
+
+
+def _all_stopped_after(observer: Observer, start: float):
+    def found():
+        times = []
+        for joint in JOINT_NAMES:
+            slow = [t for t, state in observer.states[joint]
+                    if t >= start and abs(state.motor_speed) < STOPPED_SPEED]
+            if not slow:
+                return None
+            times.append(slow[0])
+        return max(times)
+    return found
+
+
+def _reset(observer: Observer, start: float) -> None:
+    observer.reset.publish(observer.empty())
+    observer.wait_for(lambda: next((t for t, e in observer.events
+                                    if t > start and e.kind == RESET), None), 5.0)
+
+
+def test_a_drive_fault_stops_every_motor_and_latches_until_a_reset(session):
+    running, observer = session
+    start = time.monotonic()
+    running.processes['can_devices'].send('fault left_knee 0x2310')
+    raised = observer.wait_for(_fatal_after(observer, start, (DRIVE_FAULT,)), 5.0)
+    stopped = observer.wait_for(_all_stopped_after(observer, start), 5.0)
+    assert raised - start < FAULT_BOUND
+    assert stopped - start < STOP_BOUND, f'stopped after {stopped - start:.3f} s'
+    time.sleep(0.3)  # latched: the motors stay stopped
+    with observer.lock:
+        speeds = [abs(s.motor_speed) for j in JOINT_NAMES for _t, s in observer.states[j][-10:]]
+    assert max(speeds) < STOPPED_SPEED
+    _reset(observer, start)
+    dead = [name for name, p in running.processes.items() if p.process.poll() is not None]
+    assert dead == []
+
+
+def test_a_bus_that_stops_answering_is_a_fatal_event_and_nothing_crashes(session):
+    running, observer = session
+    start = time.monotonic()
+    running.processes['can_devices'].send('silence all')
+    raised = observer.wait_for(_fatal_after(observer, start, (HEARTBEAT_LOST, BUS_OFF)), 5.0)
+    assert raised - start < FAULT_BOUND + 0.15  # the 150 ms heartbeat consumer time at most
+    time.sleep(0.5)
+    dead = [name for name, p in running.processes.items() if p.process.poll() is not None]
+    assert dead == []
