@@ -9,6 +9,7 @@ standard input. The tests run in file order and share the session.
 
 from __future__ import annotations
 
+import re
 import time
 from pathlib import Path
 
@@ -23,8 +24,9 @@ from exo_has_runtime.topics import JOINT_NAMES
 
 MOTIONS, DURATIONS = ('walk', 'squat'), (8.0, 8.0)
 RATE = 200.0
-# The plant-node loop's bounds (test_session.py), each 1 deg wider: the driver passes a command
-# on at its next tick and the drive applies it at the SYNC after, one period more than a plant.
+# The plant-node loop's bounds (test_session.py), each 1 deg wider: a drive applies a command at
+# the SYNC after it arrives, and the driver publishes a sample at its tick after the SYNC, so
+# the loop's delay varies by up to a period more than a plant node's.
 HIP_SQUAT_BAND = (-3.5, 4.5)  # deg
 HIP_WALK_PEAK = 6.0  # deg
 KNEE_PEAK = 26.0  # deg
@@ -104,10 +106,35 @@ def _all_stopped_after(observer: Observer, start: float):
     return found
 
 
-def _reset(observer: Observer, start: float) -> None:
-    observer.reset.publish(observer.empty())
-    observer.wait_for(lambda: next((t for t, e in observer.events
-                                    if t > start and e.kind == RESET), None), 5.0)
+def _released_after(observer: Observer, start: float):
+    return lambda: next((t for t, e in observer.events if t > start and e.kind == RESET
+                         and 'stop released' in e.text and not e.latched), None)
+
+
+def _moving_after(observer: Observer, start: float):
+    def found():
+        for joint in JOINT_NAMES:
+            for t, state in observer.states[joint]:
+                if t > start and abs(state.motor_speed) > STOPPED_SPEED:
+                    return t
+        return None
+    return found
+
+
+def _device_motor_speeds(running: Session) -> list[float]:
+    """Ask the simulated devices for their status; return every drive's motor speed [rad/s]."""
+    devices = running.processes['can_devices']
+    before = len(devices.output)
+    devices.send('status')
+    deadline = time.monotonic() + 5.0
+    pattern = re.compile(r' drive \d+: .*motor (-?[\d.]+) rad/s')
+    while time.monotonic() < deadline:
+        speeds = [float(m.group(1)) for m in pattern.finditer(devices.output[before:])]
+        if len(speeds) == len(JOINT_NAMES):
+            return speeds
+        time.sleep(0.05)
+    msg = f'no status from the devices: {devices.output[before:]!r}'
+    raise TimeoutError(msg)
 
 
 def test_a_drive_fault_stops_every_motor_and_latches_until_a_reset(session):
@@ -122,7 +149,11 @@ def test_a_drive_fault_stops_every_motor_and_latches_until_a_reset(session):
     with observer.lock:
         speeds = [abs(s.motor_speed) for j in JOINT_NAMES for _t, s in observer.states[j][-10:]]
     assert max(speeds) < STOPPED_SPEED
-    _reset(observer, start)
+    # Released on request once the fault is reset: the drives hold the standing joints again.
+    reset_at = time.monotonic()
+    observer.reset.publish(observer.empty())
+    observer.wait_for(_released_after(observer, reset_at), 5.0)
+    observer.wait_for(_moving_after(observer, reset_at), 5.0)
     dead = [name for name, p in running.processes.items() if p.process.poll() is not None]
     assert dead == []
 
@@ -133,6 +164,11 @@ def test_a_bus_that_stops_answering_is_a_fatal_event_and_nothing_crashes(session
     running.processes['can_devices'].send('silence all')
     raised = observer.wait_for(_fatal_after(observer, start, (HEARTBEAT_LOST, BUS_OFF)), 5.0)
     assert raised - start < FAULT_BOUND + 0.15  # the 150 ms heartbeat consumer time at most
+    with observer.lock:
+        fatal = [e for t, e in observer.events if t >= start and e.severity == FATAL]
+    assert fatal and all(e.latched for e in fatal)
     time.sleep(0.5)
+    # No state comes over a silent bus: the devices say whether the motors stopped.
+    assert max(abs(speed) for speed in _device_motor_speeds(running)) < STOPPED_SPEED
     dead = [name for name, p in running.processes.items() if p.process.poll() is not None]
     assert dead == []

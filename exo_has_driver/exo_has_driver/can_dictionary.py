@@ -57,6 +57,7 @@ COB_ID_EMCY: Final = 0x1014  # UNSIGNED32
 CONSUMER_HEARTBEAT_TIME: Final = 0x1016  # ARRAY of UNSIGNED32: node ID << 16 | ms, sub 1
 PRODUCER_HEARTBEAT_TIME: Final = 0x1017  # UNSIGNED16, ms
 IDENTITY: Final = 0x1018  # RECORD: 1 vendor ID, 2 product code, 3 revision, 4 serial
+ERROR_BEHAVIOUR: Final = 0x1029  # ARRAY of UNSIGNED8, sub 1: on a communication error
 RPDO1_COMMUNICATION: Final = 0x1400  # sub 1 COB-ID (bit 31: PDO not valid), 2 transmission
 RPDO1_MAPPING: Final = 0x1600  # sub 0 number of entries, sub 1.. index << 16 | sub << 8 | bits
 TPDO1_COMMUNICATION: Final = 0x1800
@@ -67,6 +68,19 @@ TPDO2_MAPPING: Final = 0x1A01
 PDO_TRANSMISSION_SYNCHRONOUS: Final = 1
 #: COB-ID bit 31 of a PDO communication parameter: the PDO is not valid (disabled).
 PDO_COB_ID_INVALID: Final = 0x80000000
+#: COB-ID bit 30 of a PDO communication parameter: no RTR allowed (the device's to keep).
+PDO_COB_ID_NO_RTR: Final = 0x40000000
+#: The 11-bit CAN identifier in a COB-ID (bit 29 clear: base frames only).
+COB_ID_MASK: Final = 0x7FF
+#: COB-ID bit 30 of 1005h: the device produces SYNC (only the master may).
+SYNC_PRODUCER: Final = 0x40000000
+
+#: Error behaviour 1029h sub 1 (CiA 301), what a communication error (lost heartbeat, bus-off)
+#: does to the NMT state: to pre-operational (the default), no change, or to stopped.
+ERROR_BEHAVIOUR_PRE_OPERATIONAL: Final = 0
+ERROR_BEHAVIOUR_NO_CHANGE: Final = 1
+ERROR_BEHAVIOUR_STOPPED: Final = 2
+ERROR_BEHAVIOUR_COMMUNICATION_SUB: Final = 1
 
 #: Identity (1018h) and device type (1000h) of each device.
 VENDOR_ID: Final = 0x000000AB
@@ -94,9 +108,22 @@ PROFILE_ACCELERATION: Final = 0x6083  # UNSIGNED32, velocity units per second
 PROFILE_DECELERATION: Final = 0x6084  # UNSIGNED32, velocity units per second
 QUICK_STOP_DECELERATION: Final = 0x6085  # UNSIGNED32, velocity units per second
 QUICK_STOP_OPTION_CODE: Final = 0x605A  # INTEGER16
+ABORT_CONNECTION_OPTION_CODE: Final = 0x6007  # INTEGER16
 ERROR_CODE: Final = 0x603F  # UNSIGNED16, CiA 301 emergency error code of the last fault
 CURRENT_ACTUAL: Final = 0x221C  # INTEGER16, COPLEY's actual motor current, 0.01 A
 PROFILE_VELOCITY_MODE: Final = 3
+#: Quick stop option code 605Ah the master writes: brake on the quick stop ramp 6085h, then
+#: switch on disabled.
+QUICK_STOP_RAMP_THEN_DISABLE: Final = 2
+
+#: Abort connection option code 6007h (CiA 402): what the drive does to the motor when the
+#: connection to the master is lost (heartbeat consumer timeout, bus-off, NMT leaving
+#: operational): nothing, fault (fault reaction), disable voltage (the motor coasts), or quick
+#: stop (brake on 6085h, then per 605Ah).
+ABORT_CONNECTION_NO_ACTION: Final = 0
+ABORT_CONNECTION_FAULT: Final = 1
+ABORT_CONNECTION_DISABLE_VOLTAGE: Final = 2
+ABORT_CONNECTION_QUICK_STOP: Final = 3
 
 #: Default encoder resolution [counts per motor revolution]: a 1024-line incremental encoder
 #: read in quadrature, as on the Maxon-class motors COPLEY drives are paired with.
@@ -177,6 +204,12 @@ STATES: Final = {
     'fault': (0x004F, 0x0008),
 }
 
+#: EMCY code of a lost heartbeat (CiA 301 "life guard error or heartbeat error").
+ERROR_HEARTBEAT_LOST: Final = 0x8130
+#: EMCY code of another communication error (CiA 301 "communication, generic"): here, a drive
+#: sent out of NMT operational.
+ERROR_COMMUNICATION: Final = 0x8100
+
 #: CiA 301 emergency error codes the simulated drive raises and the driver names.
 ERROR_CODES: Final = {
     0x0000: 'no error',
@@ -184,22 +217,8 @@ ERROR_CODES: Final = {
     0x3210: 'DC link over-voltage',
     0x4310: 'drive over-temperature',
     0x7300: 'sensor (motor encoder) fault',
+    0x8100: 'communication error (left NMT operational)',
     0x8130: 'heartbeat of the master lost',
     0x8611: 'following error',
 }
 
-
-def cia402_state(statusword: int) -> str:
-    """Name of the CiA 402 state a statusword reports.
-
-    Raises
-    ------
-    ValueError
-        For a statusword that matches no state.
-
-    """
-    for name, (mask, value) in STATES.items():
-        if statusword & mask == value:
-            return name
-    msg = f'statusword 0x{statusword:04X} matches no CiA 402 state'
-    raise ValueError(msg)

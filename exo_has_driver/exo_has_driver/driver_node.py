@@ -23,8 +23,13 @@ Topics: ``<joint>/has_command`` in (``qos_profile_sensor_data``), ``<joint>/has_
 measured: NaN; the valve mode is inferred, see the master), ``safety_events`` out and in
 (``SAFETY_EVENT_QOS``): a FATAL, latched event from another node (the watchdog) is an e-stop,
 the driver's own events are ignored; a std_msgs/Empty on ``safety_reset`` asks to release the
-latched stop. On shutdown the motors are stopped (quick stop) and the drives disabled before
-the bus is closed.
+latched stop. The watchdog answers the same reset: the driver releases only when the newest
+event of another node says no stop is latched there (a reset that comes first waits up to
+:data:`RESET_WAIT` for the watchdog's RESET), else it refuses with a WARN event, so that the
+controllers, which resume on the driver's RESET, never move the joints under the watchdog's
+stop (:class:`ResetGate`). On shutdown the motors are stopped (quick stop) and the drives
+disabled before the bus is closed. If the master's I/O thread ends (the bus failed for good),
+the node logs FATAL and exits with status 1.
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ from __future__ import annotations
 import collections
 import math
 import sys
+import time
 from functools import partial
 
 from exo_has_driver import can_dictionary as cd
@@ -81,6 +87,59 @@ Empty = get_message('std_msgs/msg/Empty')
 
 #: Own events remembered to recognise them on the shared topic.
 OWN_EVENTS = 256
+#: How long a reset waits for another node's (the watchdog's) release [s].
+RESET_WAIT = 1.0
+#: The interpreter's thread switch interval [s]. Python's default 5 ms, a whole SYNC period,
+#: lets the executor thread hold the GIL long enough to delay the master's SYNC by a period.
+SWITCH_INTERVAL = 5e-4
+
+
+class MasterStoppedError(Exception):
+    """The master's I/O thread ended: the node cannot go on."""
+
+
+class ResetGate:
+    """Holds a reset back while another node's (the watchdog's) stop is latched.
+
+    The newest event from another node tells whether its stop is latched. A reset is passed on
+    at once when it is not; otherwise it waits up to ``wait`` [s] for an event that says it
+    was released (the watchdog answers the same reset), and is refused after that.
+    """
+
+    def __init__(self, wait: float = RESET_WAIT) -> None:
+        self.wait = wait
+        #: Text of the newest latched event of another node; None when none holds a stop.
+        self.latched_by: str | None = None
+        self._deadline: float | None = None
+
+    def on_event(self, latched: bool, text: str) -> bool:
+        """Take another node's event; return whether a waiting reset may go on now."""
+        self.latched_by = text if latched else None
+        if latched or self._deadline is None:
+            return False
+        self._deadline = None
+        return True
+
+    def on_reset(self, now: float) -> bool:
+        """Take a reset request at ``now`` [s]; return whether it may go on now."""
+        if self.latched_by is None:
+            return True
+        self._deadline = now + self.wait
+        return False
+
+    def expired(self, now: float) -> str | None:
+        """Return the refusal text once a waiting reset ran out of time, else None."""
+        if self._deadline is None or now <= self._deadline:
+            return None
+        self._deadline = None
+        return f'reset refused: a stop latched by another node holds: {self.latched_by}'
+
+
+def master_failure(running: bool, failure: BaseException | None) -> str | None:
+    """Return the FATAL text for a master whose I/O thread ended, None while it runs."""
+    if running:
+        return None
+    return f'the CAN master stopped: {failure if failure is not None else "no reason given"}'
 
 
 def _floats(low: float, high: float) -> list[FloatingPointRange]:
@@ -163,11 +222,12 @@ class Driver(Node):
             period=1.0 / rate, heartbeat_period=heartbeat_period,
             heartbeat_timeout=heartbeat_timeout, missing_syncs=missing_syncs,
             acceleration=acceleration, quick_stop_deceleration=quick_stop,
-            command_timeout=command_timeout)
+            command_timeout=command_timeout, bitrate=bitrate)
 
         self._start_ns = self.get_clock().now().nanoseconds
         self._own: collections.deque[tuple[object, ...]] = collections.deque(maxlen=OWN_EVENTS)
         self._history: SafetyEvent | None = None
+        self._gate = ResetGate()
         self._event_publisher = self.create_publisher(SafetyEvent, SAFETY_EVENT_TOPIC,
                                                       SAFETY_EVENT_QOS)
         self._state_publishers = {
@@ -200,7 +260,7 @@ class Driver(Node):
             self._master.set_command(joint, command.motor_speed, command.enable)
 
     def _on_reset(self, _: Empty) -> None:
-        if self._master is not None:
+        if self._master is not None and self._gate.on_reset(time.monotonic()):
             self._master.request_reset()
 
     def _on_event(self, event: SafetyEvent) -> None:
@@ -210,9 +270,12 @@ class Driver(Node):
         if stamp_ns < self._start_ns:
             # History of a transient-local topic: only whether a stop is still latched counts.
             self._history = event
+            self._gate.on_event(event.latched, event.text)
             return
         if event.severity == safety.SEVERITY_FATAL and event.latched:
             self._master.request_stop(event.text)
+        if self._gate.on_event(event.latched, event.text):
+            self._master.request_reset()
 
     def _on_tick(self) -> None:
         master = self._master
@@ -224,8 +287,16 @@ class Driver(Node):
         for sample in master.take_samples():
             self._state_publishers[sample.joint].publish(_state(sample))
         events = master.take_events()
+        refused = self._gate.expired(time.monotonic())
+        if refused is not None:
+            events.append(safety.Event('', safety.KIND_E_STOP, safety.SEVERITY_WARN, math.nan,
+                                       math.nan, True, refused))
         if events:
             self._emit(events)
+        fatal = master_failure(master.running, master.failure)
+        if fatal is not None:
+            self.get_logger().fatal(fatal)
+            raise MasterStoppedError(fatal)
 
     def _emit(self, events: list[safety.Event]) -> None:
         stamp = self.get_clock().now().to_msg()
@@ -277,6 +348,7 @@ def _state(sample: JointSample) -> HasState:
 
 def main(args: list[str] | None = None) -> None:
     """Run the driver until interrupted."""
+    sys.setswitchinterval(SWITCH_INTERVAL)  # see SWITCH_INTERVAL: the SYNC must not wait 5 ms
     init(args=args)
     node = None
     try:
@@ -284,6 +356,8 @@ def main(args: list[str] | None = None) -> None:
         spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except MasterStoppedError:
+        raise SystemExit(1) from None  # logged FATAL by the node
     except STARTUP_ERRORS as exc:
         if node is not None:
             raise  # not a bad configuration but a fault while running: keep its traceback

@@ -13,6 +13,7 @@ from test_devices_slave import FakeClock, Master, _bench, statusword_of  # noqa:
 from exo_has_driver import can_dictionary as cd
 from exo_has_driver.devices import Rig
 from exo_has_driver.devices.drive import motor_current, ramp
+from exo_has_driver.hardware.cia402 import decode_state
 from exo_has_sim.plant import PlantSample
 
 Bench = tuple[Rig, Master, FakeClock]
@@ -25,7 +26,7 @@ def command(master: Master, clock: FakeClock, controlword: int,
     master.send(cd.RPDO1_BASE + 1, cd.DRIVE_RPDO1.pack(controlword, target))
     (tpdo,) = master.sync(clock, expect=(DRIVE_TPDO,))
     statusword, velocity, current = cd.DRIVE_TPDO1.unpack(tpdo)
-    return cd.cia402_state(statusword), velocity, current
+    return decode_state(statusword), velocity, current
 
 
 def enable(master: Master, clock: FakeClock) -> None:
@@ -147,7 +148,7 @@ def test_an_injected_fault_sends_emcy_and_only_a_fault_reset_leaves_it(bench: Be
     node = master.node(1)
     assert node.sdo[cd.ERROR_CODE].raw == 0x2310
     assert node.sdo[0x1001].raw == 0x03
-    assert cd.cia402_state(node.sdo[cd.STATUSWORD].raw) == 'fault'
+    assert decode_state(node.sdo[cd.STATUSWORD].raw) == 'fault'
     assert rig.joints['left_hip'].plant.sample().motor_speed_command == 0.0
     for controlword in (0x06, 0x07, 0x0F, 0x00, 0x02):
         assert command(master, clock, controlword)[0] == 'fault'
@@ -158,8 +159,9 @@ def test_an_injected_fault_sends_emcy_and_only_a_fault_reset_leaves_it(bench: Be
     enable(master, clock)
 
 
-def test_losing_the_master_heartbeat_faults_the_drive_with_8130(bench: Bench) -> None:
-    _, master, clock = bench
+def test_losing_the_master_heartbeat_faults_the_drive_with_8130_and_leaves_operational(
+        bench: Bench) -> None:
+    rig, master, clock = bench
     enable(master, clock)
     master.heartbeat()  # arms the consumer (150 ms)
     command(master, clock, 0x0F, 300_000)
@@ -167,13 +169,76 @@ def test_losing_the_master_heartbeat_faults_the_drive_with_8130(bench: Bench) ->
     clock.now += 0.2  # no heartbeat for 200 ms: the timer thread notices
     emcy = master.wait_for(cd.EMCY_BASE + 1)[0]
     assert struct.unpack('<HB5x', emcy) == (0x8130, 0x11)
-    assert master.node(1).sdo[cd.ERROR_CODE].raw == 0x8130
-    assert command(master, clock, 0x0F, 300_000)[0] == 'fault'
+    # The EDS defaults: 6007h = 1 (fault), 1029h sub 1 = 0 (to pre-operational: no PDOs).
+    node = master.node(1)
+    assert node.sdo[cd.ERROR_CODE].raw == 0x8130
+    assert decode_state(node.sdo[cd.STATUSWORD].raw) == 'fault'
+    assert rig.joint('left_hip').drive.nmt_state == cd.NMT_PRE_OPERATIONAL
+    assert rig.joint('left_hip').plant.sample().motor_speed_command == 0.0
     # The sensor board reports the loss too, and keeps its TPDOs flowing.
     assert struct.unpack('<HB5x', master.wait_for(cd.EMCY_BASE + 17)[0]) == (0x8130, 0x11)
     count = len(master.wait_for(BOARD_TPDO1))
     master.sync(clock, expect=(BOARD_TPDO1,))
     assert len(master.wait_for(BOARD_TPDO1)) == count + 1
+
+
+def test_with_6007h_quick_stop_and_1029h_no_change_a_lost_master_brakes_the_motor(
+        bench: Bench) -> None:
+    rig, master, clock = bench
+    node = master.node(1)
+    node.sdo[cd.ABORT_CONNECTION_OPTION_CODE].raw = cd.ABORT_CONNECTION_QUICK_STOP
+    node.sdo[cd.ERROR_BEHAVIOUR][1].raw = cd.ERROR_BEHAVIOUR_NO_CHANGE
+    enable(master, clock)
+    for _ in range(20):
+        master.heartbeat()
+        command(master, clock, 0x0F, 300_000)
+    drive = rig.joint('left_hip').drive
+    assert drive.to_rad_s(drive.setpoint) > 40.0
+    clock.now += 0.2
+    emcy = master.wait_for(cd.EMCY_BASE + 1)[0]
+    assert struct.unpack('<HB5x', emcy) == (0x8130, 0x11)
+    # Still operational: the TPDOs flow, and enable operation does not leave the quick stop.
+    assert command(master, clock, 0x0F, 300_000)[0] in ('quick stop active',
+                                                         'switch on disabled')
+    for _ in range(10):
+        state = command(master, clock, 0x0F, 300_000)[0]
+    assert state == 'switch on disabled'
+    assert drive.nmt_state == cd.NMT_OPERATIONAL
+    assert rig.joint('left_hip').plant.sample().motor_speed_command == 0.0
+    assert node.sdo[cd.ERROR_CODE].raw == 0  # not a fault
+    master.heartbeat()  # back: error reset
+    assert master.wait_for(cd.EMCY_BASE + 1, 2)[1] == bytes(8)
+
+
+@pytest.mark.parametrize(('option', 'expected'), [
+    (cd.ABORT_CONNECTION_QUICK_STOP, 'quick stop active'),
+    (cd.ABORT_CONNECTION_DISABLE_VOLTAGE, 'switch on disabled'),
+    (cd.ABORT_CONNECTION_FAULT, 'fault'),
+    (cd.ABORT_CONNECTION_NO_ACTION, 'operation enabled'),
+])
+def test_an_nmt_command_out_of_operational_acts_per_6007h(bench: Bench, option: int,
+                                                          expected: str) -> None:
+    rig, master, clock = bench
+    node = master.node(1)
+    node.sdo[cd.ABORT_CONNECTION_OPTION_CODE].raw = option
+    enable(master, clock)
+    for _ in range(10):
+        command(master, clock, 0x0F, 300_000)
+    master.nmt(cd.NMT_ENTER_PRE_OPERATIONAL, 1)
+    drive = rig.joint('left_hip').drive
+    assert decode_state(node.sdo[cd.STATUSWORD].raw) == expected
+    assert drive.nmt_state == cd.NMT_PRE_OPERATIONAL
+    if option == cd.ABORT_CONNECTION_FAULT:
+        assert node.sdo[cd.ERROR_CODE].raw == cd.ERROR_COMMUNICATION
+
+
+def test_6007h_and_1029h_refuse_values_they_do_not_define(bench: Bench) -> None:
+    _, master, _ = bench
+    node = master.node(1)
+    with pytest.raises(canopen.SdoAbortedError, match='0x06090030'):
+        node.sdo[cd.ABORT_CONNECTION_OPTION_CODE].raw = 4
+    with pytest.raises(canopen.SdoAbortedError, match='0x06090030'):
+        node.sdo[cd.ERROR_BEHAVIOUR][1].raw = 3
 
 
 def test_modes_other_than_profile_velocity_and_other_quick_stop_options_are_refused(

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from exo_has_driver.driver_node import ResetGate, master_failure
 from exo_has_runtime.profiles import SAFETY_EVENT_QOS
 from exo_has_runtime.standalone import (
     Node,
@@ -191,11 +192,34 @@ def test_the_driver_moves_the_joints_stops_on_the_watchdog_and_on_a_drive_fault(
             # The driver does not take its own E_STOP event for another e-stop.
             assert [e.kind for e in peers.events].count(SafetyEvent.KIND_E_STOP) == 1
 
-            # A reset releases the stop; the commands move the motors again.
+            # While the watchdog's newest event says latched, the driver refuses a reset.
             count = len(peers.events)
             peers.reset_publisher.publish(Empty())
+            assert peers.run(WAIT, lambda: any(
+                e.severity == SafetyEvent.SEVERITY_WARN for e in peers.events[count:])), \
+                [e.text for e in peers.events[count:]]
+            refused = next(e for e in peers.events[count:]
+                           if e.severity == SafetyEvent.SEVERITY_WARN)
+            assert refused.latched
+            assert refused.text == ('reset refused: a stop latched by another node holds: '
+                                    'left_hip: stale state (test)')
+            assert peers.event(SafetyEvent.KIND_RESET, count) is None
+            assert all(s[-1].valve_mode == HasState.VALVE_FREE for s in peers.states.values())
+
+            # The watchdog releases on the same reset: so does the driver; the motors move.
+            count = len(peers.events)
+            peers.reset_publisher.publish(Empty())
+            release = SafetyEvent(kind=SafetyEvent.KIND_RESET,
+                                  severity=SafetyEvent.SEVERITY_INFO, latched=False,
+                                  text='reset: stop released (test)')
+            release.header.stamp.sec = int(time.time()) + 1
+            peers.watchdog.publish(release)
             event = peers.wait_event(SafetyEvent.KIND_RESET, count)
+            while event.text == 'reset: stop released (test)':  # the watchdog's own
+                count = peers.events.index(event) + 1
+                event = peers.wait_event(SafetyEvent.KIND_RESET, count)
             assert (event.severity, event.latched) == (SafetyEvent.SEVERITY_INFO, False)
+            assert event.text.startswith('reset: stop released (latched by emergency stop')
             assert peers.run(WAIT, lambda: peers.speeds_near(-20.0, 1.0))
 
             # A drive fault in the devices' process: DRIVE_FAULT with its code, all stopped.
@@ -230,3 +254,24 @@ def test_a_bad_setting_ends_the_driver_at_start_naming_it(override, message):
         assert driver.wait(timeout_s=30.0) == 1
         driver.wait_for_output(message, timeout_s=0.1)
         assert 'Traceback' not in driver.output
+
+
+def test_the_reset_gate_passes_a_reset_only_when_no_other_node_holds_a_stop():
+    gate = ResetGate(wait=1.0)
+    assert gate.on_reset(10.0)  # nothing latched elsewhere: at once
+    assert not gate.on_event(True, 'watchdog: stale state')
+    assert not gate.on_reset(11.0)  # waits for the watchdog's answer to the same reset
+    assert gate.expired(11.5) is None
+    assert gate.on_event(False, 'reset: stop released')  # released: the reset goes on
+    assert gate.expired(13.0) is None
+    gate.on_event(True, 'watchdog: stale state')
+    assert not gate.on_reset(20.0)
+    assert not gate.on_event(True, 'reset refused: stale state holds')
+    assert gate.expired(21.5) == ('reset refused: a stop latched by another node holds: '
+                                  'reset refused: stale state holds')
+    assert not gate.on_event(False, 'reset: stop released')  # no reset waits any more
+
+
+def test_a_master_whose_io_thread_ended_is_fatal_with_its_failure():
+    assert master_failure(True, None) is None
+    assert master_failure(False, OSError('bus down')) == 'the CAN master stopped: bus down'

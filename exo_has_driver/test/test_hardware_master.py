@@ -11,7 +11,12 @@ import pytest
 from exo_has_driver import can_dictionary as cd
 from exo_has_driver import safety
 from exo_has_driver.devices.rig import Rig
-from exo_has_driver.errors import CanOpenError, CanOpenTimeoutError, HardwareConfigError
+from exo_has_driver.errors import (
+    CanBusError,
+    CanOpenError,
+    CanOpenTimeoutError,
+    HardwareConfigError,
+)
 from exo_has_driver.hardware import cia402
 from exo_has_driver.hardware.master import (
     JointConfig,
@@ -42,6 +47,7 @@ class FlakyBus(can.BusABC):
         self._inner = can.Bus(interface='virtual', channel=channel)
         self.fake_state = can.BusState.ACTIVE
         self.fail_sends = False
+        self.fail_receives = 0  # receives that raise, as on a bad datagram; -1: every one
         super().__init__(channel=channel)
 
     @property
@@ -56,6 +62,9 @@ class FlakyBus(can.BusABC):
         self._inner.send(msg, timeout)
 
     def _recv_internal(self, timeout):
+        if self.fail_receives:
+            self.fail_receives -= self.fail_receives > 0
+            raise can.CanOperationError('could not unpack received message (test)')
         return self._inner.recv(timeout), False
 
     def shutdown(self):
@@ -68,7 +77,7 @@ class Setup:
     """A rig of simulated devices and a started master on one virtual bus."""
 
     def __init__(self, joints=JOINTS, master_bus=None, **settings):
-        channel = f'test-{uuid.uuid4().hex}'
+        channel = self.channel = f'test-{uuid.uuid4().hex}'
         self.rig_bus = can.Bus(interface='virtual', channel=channel)
         self.bus = master_bus(channel) if master_bus else can.Bus(interface='virtual',
                                                                   channel=channel)
@@ -146,6 +155,12 @@ def test_start_enables_every_drive_and_writes_the_specified_configuration(setup)
         assert joint.drive.get(cd.PROFILE_ACCELERATION) == units.acceleration_to_drive(15000.0)
         assert joint.drive.get(cd.QUICK_STOP_DECELERATION) == pytest.approx(195_569_594, abs=1)
         assert joint.drive.get(cd.MODES_OF_OPERATION) == cd.PROFILE_VELOCITY_MODE
+        assert joint.drive.get(cd.ABORT_CONNECTION_OPTION_CODE) == \
+            cd.ABORT_CONNECTION_QUICK_STOP
+        assert joint.drive.get(cd.ERROR_BEHAVIOUR, 1) == cd.ERROR_BEHAVIOUR_NO_CHANGE
+        # The TPDO's COB-ID matched on its identifier: its no-RTR bit 30 was left alone.
+        assert joint.drive.get(cd.TPDO1_COMMUNICATION, 1) == \
+            cd.PDO_COB_ID_NO_RTR | (cd.TPDO1_BASE + joint.drive.node_id)
     setup.run(0.2)
     assert setup.events == []
     assert not setup.master.latched
@@ -244,7 +259,7 @@ def test_a_reset_without_a_latched_stop_says_so(setup):
 
 
 def inject_drive_fault(rig):
-    rig.drive_fault('left_knee', 0x2310)
+    rig.drive_fault('left_knee', 0x4310, holds=True)  # a hot drive: resets fail until clear
 
 
 def inject_lost_heartbeat(rig):
@@ -265,8 +280,8 @@ def inject_silent_bus(rig):
 
 FAULTS = {
     # name: (injection, kind, joint, value, limit, reset refused while it holds)
-    'drive fault': (inject_drive_fault, safety.KIND_DRIVE_FAULT, 'left_knee', 0x2310, math.nan,
-                    False),
+    'drive fault': (inject_drive_fault, safety.KIND_DRIVE_FAULT, 'left_knee', 0x4310, math.nan,
+                    True),
     'lost heartbeat': (inject_lost_heartbeat, safety.KIND_HEARTBEAT_LOST, 'right_hip', None,
                        0.15, True),
     'sensor NaN': (inject_sensor_nan, safety.KIND_SENSOR_FAULT, 'left_hip', math.nan,
@@ -311,6 +326,12 @@ def test_each_fault_stops_every_motor_latches_and_a_reset_after_it_clears_releas
         warning = next(e for e in setup.events[count:] if e.severity == safety.SEVERITY_WARN)
         assert warning.latched and warning.text.startswith('reset refused: ')
         assert setup.master.latched
+        assert not any(e.kind == safety.KIND_RESET for e in setup.events[count:])
+        # Nothing moved meanwhile: no drive was enabled again.
+        assert setup.run(0.3, lambda: any(state == 'operation enabled'
+                                          for state in setup.rig_states().values()),
+                         commands) is False
+        assert setup.motors_stopped()
     setup.rig.clear()
     setup.run(0.4, commands=commands)  # heartbeats and TPDOs flow again
     count = len(setup.events)
@@ -369,7 +390,9 @@ def test_close_stops_the_motors_and_leaves_the_drives_disabled(setup):
     setup.run(0.3, commands=commands)
     setup.master.close()
     assert not setup.master.running
-    assert setup.rig_states() == dict.fromkeys(JOINTS, 'switch on disabled')
+    # Without the master's heartbeat the drives may act on the lost connection by now.
+    assert all(state in ('switch on disabled', 'fault')
+               for state in setup.rig_states().values()), setup.rig_states()
     deadline = time.monotonic() + WAIT
     while not setup.motors_stopped() and time.monotonic() < deadline:
         time.sleep(0.01)
@@ -424,3 +447,189 @@ def test_the_valve_mode_is_inferred_from_pressure_speed_and_drive_state():
     assert infer_valve_mode(hip, enabled, 0.1, 2.0e6, 0.0) == safety.VALVE_ASSIST
     assert infer_valve_mode(hip, enabled, 30.0, 0.1e6, 0.0) == safety.VALVE_ASSIST
     assert infer_valve_mode(hip, enabled, -30.0, 17.9e6, 0.0) == safety.VALVE_ASSIST
+
+
+def test_a_drive_sent_out_of_operational_is_started_again_and_quick_stopped(setup):
+    commands = dict.fromkeys(JOINTS, (80.0, True))
+    setup.run(0.3, commands=commands)
+    drive = setup.rig.joint('left_hip').drive
+    with setup.rig._lock:  # a drive that does nothing on a lost connection (6007h = 0)
+        drive.values[(cd.ABORT_CONNECTION_OPTION_CODE, 0)] = cd.ABORT_CONNECTION_NO_ACTION
+    other = can.Bus(interface='virtual', channel=setup.channel)
+    try:
+        other.send(can.Message(arbitration_id=cd.NMT_COB_ID, is_extended_id=False,
+                               data=bytes((cd.NMT_ENTER_PRE_OPERATIONAL, drive.node_id))))
+    finally:
+        other.shutdown()
+    event = setup.wait_event(safety.KIND_HEARTBEAT_LOST, commands=commands)
+    assert event.joint == 'left_hip' and 'pre-operational' in event.text
+    # The master starts it again, so that its quick stop applies: the motor stops.
+    assert setup.run(WAIT, lambda: drive.nmt_state == cd.NMT_OPERATIONAL
+                     and drive.state == 'switch on disabled' and setup.motors_stopped(),
+                     commands), (drive.nmt_state, drive.state)
+    # Its heartbeat reports operational within a producer period; until then resets fail.
+    count = len(setup.events)
+    deadline = time.monotonic() + WAIT
+    while not any(e.kind == safety.KIND_RESET for e in setup.events[count:]):
+        assert time.monotonic() < deadline, [e.text for e in setup.events[count:]]
+        setup.master.request_reset()
+        setup.run(0.2, commands=commands)
+    assert setup.run(WAIT, lambda: drive.state == 'operation enabled', commands)
+
+
+def test_a_drive_leaving_operation_enabled_by_itself_latches_a_drive_fault(setup):
+    commands = dict.fromkeys(JOINTS, (60.0, True))
+    setup.run(0.3, commands=commands)
+    drive = setup.rig.joint('right_hip').drive
+    with setup.rig._lock:
+        drive._enter('switch on disabled')  # no EMCY, no fault: it just dropped out
+    event = setup.wait_event(safety.KIND_DRIVE_FAULT, commands=commands)
+    assert event.joint == 'right_hip'
+    assert 'left operation enabled for switch on disabled by itself' in event.text
+    assert setup.run(WAIT, setup.motors_stopped, commands)
+    assert setup.run(0.3, lambda: drive.state == 'operation enabled', commands) is False
+
+
+def test_a_drive_in_fault_without_emcy_right_after_the_start_is_not_reset_silently(setup):
+    drive = setup.rig.joint('left_knee').drive
+    with setup.rig._lock:
+        drive._enter('fault')  # within the old 110 ms fault reset window, no EMCY
+    event = setup.wait_event(safety.KIND_DRIVE_FAULT)
+    assert event.joint == 'left_knee'
+    assert event.text == ('left_knee drive (node 2) in fault (no EMCY received since it '
+                          'entered fault)')
+    setup.run(0.3)
+    assert drive.state == 'fault'
+    assert setup.master.latched
+
+
+def test_a_command_faster_than_the_motor_is_clamped_to_its_maximum_speed(setup):
+    setup.run(0.3, commands={'left_hip': (1000.0, True), 'left_knee': (-1000.0, True)})
+    last = {s.joint: s for s in setup.samples}
+    limit = PARAMS['hip'].motor_speed_max  # 4000 r/min
+    quantum = 1.0 / setup.master.config.units.velocity_per_rad_s
+    assert last['left_hip'].motor_speed_command == pytest.approx(limit, abs=quantum)
+    assert last['left_knee'].motor_speed_command == pytest.approx(
+        -PARAMS['knee'].motor_speed_max, abs=quantum)
+
+
+def test_one_failed_receive_latches_a_bus_fault_and_the_master_keeps_running():
+    setup = Setup(master_bus=FlakyBus)
+    try:
+        setup.master.start()
+        commands = dict.fromkeys(JOINTS, (50.0, True))
+        setup.run(0.2, commands=commands)
+        setup.master.bus.fail_receives = 1
+        event = setup.wait_event(safety.KIND_BUS_OFF, commands=commands)
+        assert 'receiving from the CAN bus failed: could not unpack' in event.text
+        setup.run(0.3, commands=commands)
+        assert setup.master.running
+        assert setup.master.failure is None
+        # The fault holds for a second, then a reset is answered and releases.
+        setup.run(1.0, commands=commands)
+        count = len(setup.events)
+        setup.master.request_reset()
+        assert setup.run(WAIT, lambda: any(e.kind == safety.KIND_RESET
+                                           for e in setup.events[count:]), commands), \
+            [e.text for e in setup.events[count:]]
+        assert setup.run(WAIT, lambda: setup.rig_states() == dict.fromkeys(
+            JOINTS, 'operation enabled'), commands)
+    finally:
+        setup.close()
+
+
+def test_a_bus_that_keeps_failing_to_receive_ends_the_master_with_its_failure():
+    setup = Setup(master_bus=FlakyBus)
+    try:
+        setup.master.start()
+        setup.master.bus.fail_receives = -1
+        assert setup.run(WAIT + 2.0, lambda: not setup.master.running)
+        assert isinstance(setup.master.failure, CanBusError)
+        assert 'receives in a row failed' in str(setup.master.failure)
+        assert setup.master.latched
+        # Without SYNCs and the master's heartbeat the drives stop on their own.
+        assert setup.run(WAIT, setup.motors_stopped)
+    finally:
+        setup.master.bus.fail_receives = 0
+        setup.close()
+
+
+def test_a_receive_error_at_start_is_a_can_bus_error():
+    setup = Setup(joints=('left_hip',), master_bus=FlakyBus)
+    try:
+        setup.master.bus.fail_receives = -1
+        with pytest.raises(CanBusError, match='the CAN bus failed while starting the slaves'):
+            setup.master.start()
+    finally:
+        setup.master.bus.fail_receives = 0
+        setup.close()
+
+
+@pytest.mark.parametrize(('code', 'starts'), [(0x8130, True), (0x2310, False)])
+def test_start_resets_only_a_lost_master_heartbeat_fault_and_names_any_other(code, starts):
+    setup = Setup(joints=('left_hip', 'left_knee'))
+    try:
+        setup.rig.drive_fault('left_knee', code)
+        if starts:
+            setup.master.start()
+            assert setup.master.drive_states() == dict.fromkeys(
+                ('left_hip', 'left_knee'), cia402.OPERATION_ENABLED)
+        else:
+            with pytest.raises(CanOpenError, match=r'left_knee drive \(node 2\) is in fault with '
+                                                   r'error code 0x2310 continuous over-current'):
+                setup.master.start()
+            assert setup.rig.joint('left_knee').drive.state == 'fault'
+    finally:
+        setup.close()
+
+
+def test_start_waits_for_the_boot_up_not_any_heartbeat():
+    setup = Setup(joints=('left_hip',))
+    setup.master = Master(setup.bus, config(('left_hip',), boot_timeout=0.3))
+    drive = setup.rig.joint('left_hip').drive
+    on_nmt = drive.on_nmt
+
+    def deaf_to_resets(data, now):
+        if data[0] != cd.NMT_RESET_COMMUNICATION:
+            on_nmt(data, now)
+
+    drive.on_nmt = deaf_to_resets  # it keeps sending its pre-operational heartbeat
+    try:
+        with pytest.raises(CanOpenTimeoutError, match=r'no boot-up within 0.3 s .* left_hip '
+                                                      r'drive \(node 1\)'):
+            setup.master.start()
+    finally:
+        setup.close()
+
+
+def test_the_configuration_refuses_a_rate_the_bus_cannot_carry():
+    assert config(period=0.005).bitrate == 1_000_000  # 4 joints at 200 Hz: 44 %
+    with pytest.raises(HardwareConfigError, match=r'the bus cannot carry a SYNC every 1 ms: '
+                                                  r'4 joints take about 2135 bit per SYNC'):
+        config(period=0.001)
+    config(('left_hip',), period=0.001)  # one joint: 575 bit per ms
+    with pytest.raises(HardwareConfigError, match='over 80% of 250 kbit/s'):
+        config(bitrate=250_000)
+
+
+def test_a_slave_that_rebooted_while_running_refuses_every_reset_until_the_restart(setup):
+    other = can.Bus(interface='virtual', channel=setup.channel)
+    try:
+        other.send(can.Message(arbitration_id=cd.NMT_COB_ID, is_extended_id=False,
+                               data=bytes((cd.NMT_RESET_NODE, 18))))
+    finally:
+        other.shutdown()
+    event = setup.wait_event(safety.KIND_HEARTBEAT_LOST)
+    assert event.text == ('left_knee sensor board (node 18): booted (boot-up message) while '
+                          'running: its configuration is lost, restart the driver')
+    # The latch starts it again (its TPDOs flow), but its configuration is the default one.
+    assert setup.run(WAIT, lambda: setup.rig.joint('left_knee').board.nmt_state
+                     == cd.NMT_OPERATIONAL)
+    setup.run(0.3)
+    count = len(setup.events)
+    setup.master.request_reset()
+    assert setup.run(WAIT, lambda: any(e.severity == safety.SEVERITY_WARN
+                                       for e in setup.events[count:]))
+    warning = next(e for e in setup.events[count:] if e.severity == safety.SEVERITY_WARN)
+    assert 'restart the driver' in warning.text
+    assert setup.master.latched

@@ -31,8 +31,16 @@ Behaviour (``config/canopen/README.md``, CiA 402):
 - faults: :meth:`Drive.fault` (fault injection, or the master's heartbeat lost: 8130h) sets
   603Fh (kept after the reset, "error code of the last fault") and the error register 1001h,
   sends an EMCY, disables the motor and enters *fault*;
-- NMT: the CiA 402 state does not follow the NMT state (the master's heartbeat guards
-  against a lost master), except reset node, which restarts the application.
+- lost connection (CiA 402 abort connection option code 6007h, CiA 301 error behaviour
+  1029h): when the master's heartbeat is lost (EMCY 8130h, error register bit 4, and EMCY
+  0000h when it returns), or an NMT command takes the drive out of operational (stop, enter
+  pre-operational, reset communication), the drive acts per 6007h: 0 nothing, 1 fault
+  (8130h, or 8100h for the NMT command), 2 disable voltage (the motor coasts), 3 quick stop
+  (ramp 6085h, then switch on disabled); the EDS default is 1. On the heartbeat loss 1029h
+  sub 1 then sets the NMT state: 0 (default) pre-operational, 1 no change, 2 stopped;
+- NMT reset node restarts the application (switch on disabled, motor off);
+- :attr:`Drive.fault_holds` (fault injection): the cause of the fault persists, a fault
+  reset edge is refused.
 """
 
 from __future__ import annotations
@@ -50,6 +58,7 @@ from exo_has_driver.devices.slave import (
     error_register_for,
 )
 from exo_has_driver.errors import DeviceError, SdoAbortError
+from exo_has_driver.hardware import cia402
 from exo_has_sim.plant import Plant, PlantSample
 
 #: EDS of the drive.
@@ -67,20 +76,23 @@ TORQUE_CONSTANT = 0.1
 VELOCITY_WINDOW = 1.0
 
 _STATE_BITS = {
-    'not ready to switch on': 0x0000,
-    'switch on disabled': 0x0040,
-    'ready to switch on': 0x0031,
-    'switched on': 0x0033,
-    'operation enabled': 0x0037,
-    'quick stop active': 0x0017,
-    'fault reaction active': 0x001F,
-    'fault': 0x0008,
+    cia402.NOT_READY: 0x0000,
+    cia402.SWITCH_ON_DISABLED: 0x0040,
+    cia402.READY_TO_SWITCH_ON: 0x0031,
+    cia402.SWITCHED_ON: 0x0033,
+    cia402.OPERATION_ENABLED: 0x0037,
+    cia402.QUICK_STOP_ACTIVE: 0x0017,
+    cia402.FAULT_REACTION_ACTIVE: 0x001F,
+    cia402.FAULT: 0x0008,
 }
 _REMOTE = 0x0200
 _TARGET_REACHED = 0x0400
 _SPEED_ZERO = 0x1000
 _HALT = 0x0100
-_ENERGISED = ('operation enabled', 'quick stop active')
+_ENERGISED = (cia402.OPERATION_ENABLED, cia402.QUICK_STOP_ACTIVE)
+_POWERED = (cia402.READY_TO_SWITCH_ON, cia402.SWITCHED_ON, *_ENERGISED)
+_ABORT_CONNECTION_CODES = (cd.ABORT_CONNECTION_NO_ACTION, cd.ABORT_CONNECTION_FAULT,
+                           cd.ABORT_CONNECTION_DISABLE_VOLTAGE, cd.ABORT_CONNECTION_QUICK_STOP)
 _I32 = (-0x80000000, 0x7FFFFFFF)
 _I16 = (-0x8000, 0x7FFF)
 
@@ -185,12 +197,15 @@ class Drive(Slave):
         #: Pump speed [rad/s] per drive velocity unit.
         self.rad_s_per_unit = velocity_unit * 2.0 * math.pi / (encoder_counts * gear_ratio)
         self._window = VELOCITY_WINDOW / self.rad_s_per_unit
-        self.state = 'not ready to switch on'
+        self.state = cia402.NOT_READY
         self.setpoint = 0.0  # ramp output [drive velocity units]
         self._pending: tuple[int, int] | None = None
         self._last_controlword = 0
         self._rpdo_ok = True
         self._tpdo_ok = True
+        #: Whether the cause of a fault persists (fault injection): a fault reset edge is then
+        #: refused, the drive stays in fault, as a hot drive does.
+        self.fault_holds = False
 
     # --- units ------------------------------------------------------------------------------
     def to_units(self, pump_speed: float) -> float:
@@ -203,7 +218,7 @@ class Drive(Slave):
 
     # --- application hooks -------------------------------------------------------------------
     def _reset_application(self) -> None:
-        self.state = 'switch on disabled'  # not ready to switch on passes at once
+        self.state = cia402.SWITCH_ON_DISABLED  # not ready to switch on passes at once
         self.setpoint = 0.0
         self._pending = None
         self._last_controlword = 0
@@ -218,25 +233,30 @@ class Drive(Slave):
             msg = (f'{where}: mode of operation {value} not supported, only '
                    f'{cd.PROFILE_VELOCITY_MODE} (profile velocity)')
             raise SdoAbortError(ABORT_INVALID_VALUE, msg)
-        if index == cd.QUICK_STOP_OPTION_CODE and value != 2:
-            msg = f'{where}: quick stop option code {value} not supported, only 2'
+        if index == cd.QUICK_STOP_OPTION_CODE and value != cd.QUICK_STOP_RAMP_THEN_DISABLE:
+            msg = (f'{where}: quick stop option code {value} not supported, only '
+                   f'{cd.QUICK_STOP_RAMP_THEN_DISABLE}')
+            raise SdoAbortError(ABORT_INVALID_VALUE, msg)
+        if index == cd.ABORT_CONNECTION_OPTION_CODE and value not in _ABORT_CONNECTION_CODES:
+            msg = f'{where}: abort connection option code {value} not supported, only 0 to 3'
             raise SdoAbortError(ABORT_INVALID_VALUE, msg)
         if index in (cd.PROFILE_ACCELERATION, cd.PROFILE_DECELERATION,
                      cd.QUICK_STOP_DECELERATION) and value == 0:
             msg = f'{where}: a ramp rate must be over 0 velocity units per second'
             raise SdoAbortError(ABORT_INVALID_VALUE, msg)
         self._check_pdo_write(index, subindex, value,
-                              {0x1600: cd.DRIVE_RPDO1_MAP, 0x1A00: cd.DRIVE_TPDO1_MAP},
-                              {0x1400: cd.RPDO1_BASE + self.node_id,
-                               0x1800: cd.TPDO1_BASE + self.node_id})
+                              {cd.RPDO1_MAPPING: cd.DRIVE_RPDO1_MAP,
+                               cd.TPDO1_MAPPING: cd.DRIVE_TPDO1_MAP},
+                              {cd.RPDO1_COMMUNICATION: cd.RPDO1_BASE + self.node_id,
+                               cd.TPDO1_COMMUNICATION: cd.TPDO1_BASE + self.node_id})
 
     def _written(self, index: int, subindex: int, value: Value) -> None:
         if index == cd.MODES_OF_OPERATION:
             self.values[(cd.MODES_OF_OPERATION_DISPLAY, 0)] = value
-        elif index == cd.CONTROLWORD:
-            assert isinstance(value, int)
+        elif index == cd.CONTROLWORD and isinstance(value, int):  # an UNSIGNED16: always
             self._controlword(value)
-        elif index in (0x1400, 0x1600, 0x1800, 0x1A00):
+        elif index in (cd.RPDO1_COMMUNICATION, cd.RPDO1_MAPPING, cd.TPDO1_COMMUNICATION,
+                       cd.TPDO1_MAPPING):
             self._update_flags()
 
     def _refresh(self, index: int) -> None:
@@ -244,11 +264,39 @@ class Drive(Slave):
             self._update_outputs(self.plant.sample())
 
     def _heartbeat_lost(self) -> None:
-        self.fault(0x8130)
+        # CiA 301's EMCY of a heartbeat consumer; the fault action (6007h = 1) sends its own.
+        if self.state != cia402.FAULT \
+                and self.get(cd.ABORT_CONNECTION_OPTION_CODE) != cd.ABORT_CONNECTION_FAULT:
+            self.values[(cd.ERROR_REGISTER, 0)] = error_register_for(cd.ERROR_HEARTBEAT_LOST)
+            self.send_emcy(cd.ERROR_HEARTBEAT_LOST)
+        self._abort_connection(cd.ERROR_HEARTBEAT_LOST)
+
+    def _heartbeat_back(self) -> None:
+        if self.state != cia402.FAULT:
+            self.values[(cd.ERROR_REGISTER, 0)] = 0
+            self.send_emcy(0x0000)
+
+    def _left_operational(self, code: int) -> None:
+        self._abort_connection(code)
+
+    def _abort_connection(self, code: int) -> None:
+        """Stop the motor per the abort connection option code 6007h; a repeat does nothing."""
+        option = self.get(cd.ABORT_CONNECTION_OPTION_CODE)
+        state = self.state
+        if option == cd.ABORT_CONNECTION_FAULT:
+            self.fault(code)
+        elif option == cd.ABORT_CONNECTION_DISABLE_VOLTAGE:
+            if state in _POWERED:
+                self._enter(cia402.SWITCH_ON_DISABLED)
+        elif option == cd.ABORT_CONNECTION_QUICK_STOP:
+            if state == cia402.OPERATION_ENABLED:
+                self._enter(cia402.QUICK_STOP_ACTIVE)
+            elif state in (cia402.READY_TO_SWITCH_ON, cia402.SWITCHED_ON):
+                self._enter(cia402.SWITCH_ON_DISABLED)
 
     def _update_flags(self) -> None:
-        self._rpdo_ok = self.pdo_enabled(0x1400, 0x1600)
-        self._tpdo_ok = self.pdo_enabled(0x1800, 0x1A00)
+        self._rpdo_ok = self.pdo_enabled(cd.RPDO1_COMMUNICATION, cd.RPDO1_MAPPING)
+        self._tpdo_ok = self.pdo_enabled(cd.TPDO1_COMMUNICATION, cd.TPDO1_MAPPING)
 
     # --- PDOs and SYNC -----------------------------------------------------------------------
     def on_rpdo(self, data: bytes) -> None:
@@ -274,17 +322,17 @@ class Drive(Slave):
 
     def step(self, elapsed: float) -> None:
         """Advance the ramp by ``elapsed`` seconds and command the plant with the setpoint."""
-        if self.state == 'operation enabled':
+        if self.state == cia402.OPERATION_ENABLED:
             get = self.get
             target = 0 if get(cd.CONTROLWORD) & _HALT else get(cd.TARGET_VELOCITY)
             self.setpoint = ramp(self.setpoint, float(target),
                                  float(get(cd.PROFILE_ACCELERATION)),
                                  float(get(cd.PROFILE_DECELERATION)), elapsed)
-        elif self.state == 'quick stop active':
+        elif self.state == cia402.QUICK_STOP_ACTIVE:
             rate = float(self.get(cd.QUICK_STOP_DECELERATION))
             self.setpoint = ramp(self.setpoint, 0.0, rate, rate, elapsed)
             if self.setpoint == 0.0:
-                self.state = 'switch on disabled'  # 605Ah = 2
+                self.state = cia402.SWITCH_ON_DISABLED  # 605Ah = 2
         self._command_plant()
 
     def _command_plant(self) -> None:
@@ -298,12 +346,12 @@ class Drive(Slave):
         statusword = _STATE_BITS[self.state] | _REMOTE
         if abs(velocity) <= self._window:
             statusword |= _SPEED_ZERO
-        if self.state == 'operation enabled':
+        if self.state == cia402.OPERATION_ENABLED:
             controlword = self.get(cd.CONTROLWORD)
             target = 0 if controlword & _HALT else self.get(cd.TARGET_VELOCITY)
             if self.setpoint == target and abs(velocity - target) <= self._window:
                 statusword |= _TARGET_REACHED
-        elif self.state == 'quick stop active' and abs(velocity) <= self._window:
+        elif self.state == cia402.QUICK_STOP_ACTIVE and abs(velocity) <= self._window:
             statusword |= _TARGET_REACHED
         if self.state in _ENERGISED:
             params = self.plant.params
@@ -326,27 +374,28 @@ class Drive(Slave):
         self._last_controlword = controlword
         state = self.state
         new = state
-        if state == 'fault':
-            if reset_edge:
-                new = 'switch on disabled'
-                self.values[(0x1001, 0)] = 0
+        if state == cia402.FAULT:
+            if reset_edge and not self.fault_holds:
+                new = cia402.SWITCH_ON_DISABLED
+                self.values[(cd.ERROR_REGISTER, 0)] = 0
                 self.send_emcy(0x0000)  # error reset
         elif controlword & 0x82 == 0x00:  # disable voltage
-            if state != 'switch on disabled':
-                new = 'switch on disabled'
+            if state != cia402.SWITCH_ON_DISABLED:
+                new = cia402.SWITCH_ON_DISABLED
         elif controlword & 0x86 == 0x02:  # quick stop
-            if state in ('ready to switch on', 'switched on'):
-                new = 'switch on disabled'
-            elif state == 'operation enabled':
-                new = 'quick stop active'
+            if state in (cia402.READY_TO_SWITCH_ON, cia402.SWITCHED_ON):
+                new = cia402.SWITCH_ON_DISABLED
+            elif state == cia402.OPERATION_ENABLED:
+                new = cia402.QUICK_STOP_ACTIVE
         elif controlword & 0x87 == 0x06:  # shutdown
-            if state in ('switch on disabled', 'switched on', 'operation enabled'):
-                new = 'ready to switch on'
+            if state in (cia402.SWITCH_ON_DISABLED, cia402.SWITCHED_ON, cia402.OPERATION_ENABLED):
+                new = cia402.READY_TO_SWITCH_ON
         elif controlword & 0x8F == 0x07:  # switch on; disable operation
-            if state in ('ready to switch on', 'operation enabled'):
-                new = 'switched on'
-        elif controlword & 0x8F == 0x0F and state in ('ready to switch on', 'switched on'):
-            new = 'operation enabled'
+            if state in (cia402.READY_TO_SWITCH_ON, cia402.OPERATION_ENABLED):
+                new = cia402.SWITCHED_ON
+        elif controlword & 0x8F == 0x0F and state in (cia402.READY_TO_SWITCH_ON,
+                                                      cia402.SWITCHED_ON):
+            new = cia402.OPERATION_ENABLED
         if new != state:
             self._enter(new)
 
@@ -371,10 +420,10 @@ class Drive(Slave):
         if not 0 < code <= 0xFFFF:
             msg = f'drive {self.node_id}: error code must be 0x0001 to 0xFFFF, got {code:#x}'
             raise DeviceError(msg)
-        if self.state == 'fault' and self.get(cd.ERROR_CODE) == code:
+        if self.state == cia402.FAULT and self.get(cd.ERROR_CODE) == code:
             return
         self.values[(cd.ERROR_CODE, 0)] = code
-        self.values[(0x1001, 0)] = error_register_for(code)
+        self.values[(cd.ERROR_REGISTER, 0)] = error_register_for(code)
         self._pending = None
-        self._enter('fault')
+        self._enter(cia402.FAULT)
         self.send_emcy(code)

@@ -22,7 +22,8 @@ syntax (``0x2310``, ``1e6``, ``nan``):
     channel's status bit; ``clear`` returns to the plant.
 ``silence <joint> [on|off]`` [all]
     The joint's devices neither send nor receive any frame (a cut cable); their timers run
-    on, so a silenced drive faults with 8130h when the master's heartbeat times out.
+    on, so a silenced drive acts on the lost master heartbeat per its 6007h (the driver's
+    quick stop, or the default fault 8130h).
 ``load <joint> <newtons>|default`` [all]
     External rod force [N], positive pushing the cylinder in.
 ``clear <joint>`` [all]

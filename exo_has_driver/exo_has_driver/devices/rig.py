@@ -33,7 +33,7 @@ import can
 from exo_has_driver import can_dictionary as cd
 from exo_has_driver.devices.drive import Drive
 from exo_has_driver.devices.sensor_board import SensorBoard
-from exo_has_driver.devices.slave import NMT_STATE_NAMES, NMT_STOPPED, Slave
+from exo_has_driver.devices.slave import NMT_STATE_NAMES, Slave
 from exo_has_driver.errors import DeviceError, FaultInjectionError
 from exo_has_sim.errors import SimulationError
 from exo_has_sim.loads import default_load_force
@@ -233,7 +233,7 @@ class Rig:
         for joint in self.joints.values():
             sample = joint.plant.sample()
             for device in (joint.drive, joint.board):
-                if not device.silent and device.nmt_state != NMT_STOPPED:
+                if not device.silent and device.nmt_state != cd.NMT_STOPPED:
                     device.on_sync(sample)
 
     # --- time ----------------------------------------------------------------------------------
@@ -278,13 +278,17 @@ class Rig:
     def _select(self, name: str | None) -> list[Joint]:
         return list(self.joints.values()) if name in (None, 'all') else [self.joint(str(name))]
 
-    def drive_fault(self, name: str, code: int) -> None:
-        """Make the drive of joint ``name`` fault with CiA 301 error ``code`` (EMCY, 603Fh)."""
+    def drive_fault(self, name: str, code: int, holds: bool = False) -> None:
+        """Make the drive of joint ``name`` fault with CiA 301 error ``code`` (EMCY, 603Fh).
+
+        With ``holds`` the cause persists until :meth:`clear`: fault resets are refused.
+        """
         if not 0 < code <= 0xFFFF:
             msg = f'error code must be 0x0001 to 0xFFFF, got {code:#x}'
             raise FaultInjectionError(msg)
         with self._lock:
             for joint in self._select(name):
+                joint.drive.fault_holds = holds
                 joint.drive.fault(code)
 
     def set_heartbeat(self, name: str | None, on: bool, device: str = 'drive') -> None:
@@ -337,10 +341,12 @@ class Rig:
     def clear(self, name: str | None = None) -> None:
         """Undo the injections on a joint (or all): heartbeats, sensors, silence, load.
 
-        A drive fault is not undone here: the master's fault reset clears it, as on hardware.
+        A drive fault is not undone here: its cause goes (a fault reset can then succeed), the
+        master's fault reset clears it, as on hardware.
         """
         with self._lock:
             for joint in self._select(name):
+                joint.drive.fault_holds = False
                 for slave in (joint.drive, joint.board):
                     slave.heartbeat_enabled = True
                     slave.silent = False

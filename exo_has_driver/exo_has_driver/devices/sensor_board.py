@@ -103,12 +103,14 @@ class SensorBoard(Slave):
     def _check_write(self, index: int, subindex: int, value: Value) -> None:
         super()._check_write(index, subindex, value)
         self._check_pdo_write(index, subindex, value,
-                              {0x1A00: cd.SENSOR_TPDO1_MAP, 0x1A01: cd.SENSOR_TPDO2_MAP},
-                              {0x1800: cd.TPDO1_BASE + self.node_id,
-                               0x1801: cd.TPDO2_BASE + self.node_id})
+                              {cd.TPDO1_MAPPING: cd.SENSOR_TPDO1_MAP,
+                               cd.TPDO2_MAPPING: cd.SENSOR_TPDO2_MAP},
+                              {cd.TPDO1_COMMUNICATION: cd.TPDO1_BASE + self.node_id,
+                               cd.TPDO2_COMMUNICATION: cd.TPDO2_BASE + self.node_id})
 
     def _written(self, index: int, subindex: int, value: Value) -> None:
-        if index in (0x1800, 0x1801, 0x1A00, 0x1A01):
+        if index in (cd.TPDO1_COMMUNICATION, cd.TPDO2_COMMUNICATION, cd.TPDO1_MAPPING,
+                     cd.TPDO2_MAPPING):
             self._update_flags()
 
     def _refresh(self, index: int) -> None:
@@ -116,16 +118,16 @@ class SensorBoard(Slave):
             self._sample(self.plant.sample())
 
     def _heartbeat_lost(self) -> None:
-        self.values[(0x1001, 0)] = error_register_for(0x8130)
-        self.send_emcy(0x8130)
+        self.values[(cd.ERROR_REGISTER, 0)] = error_register_for(cd.ERROR_HEARTBEAT_LOST)
+        self.send_emcy(cd.ERROR_HEARTBEAT_LOST)
 
     def _heartbeat_back(self) -> None:
-        self.values[(0x1001, 0)] = 0
+        self.values[(cd.ERROR_REGISTER, 0)] = 0
         self.send_emcy(0x0000)
 
     def _update_flags(self) -> None:
-        self._tpdo1_ok = self.pdo_enabled(0x1800, 0x1A00)
-        self._tpdo2_ok = self.pdo_enabled(0x1801, 0x1A01)
+        self._tpdo1_ok = self.pdo_enabled(cd.TPDO1_COMMUNICATION, cd.TPDO1_MAPPING)
+        self._tpdo2_ok = self.pdo_enabled(cd.TPDO2_COMMUNICATION, cd.TPDO2_MAPPING)
 
     # --- sampling ------------------------------------------------------------------------------
     def _sample(self, sample: PlantSample) -> tuple[int, int, int, int, int]:

@@ -43,18 +43,10 @@ from exo_has_driver.errors import DeviceError, SdoAbortError
 #: Directory of the EDS files (``exo_has_driver/config/canopen``, next to the package).
 EDS_DIR = Path(__file__).resolve().parents[2] / 'config' / 'canopen'
 
-# NMT states as the heartbeat reports them, and the NMT command specifiers.
-NMT_INITIALISING = 0x00
-NMT_STOPPED = 0x04
-NMT_OPERATIONAL = 0x05
-NMT_PRE_OPERATIONAL = 0x7F
-NMT_START = 0x01
-NMT_STOP = 0x02
-NMT_ENTER_PRE_OPERATIONAL = 0x80
-NMT_RESET_NODE = 0x81
-NMT_RESET_COMMUNICATION = 0x82
-NMT_STATE_NAMES = {NMT_INITIALISING: 'initialising', NMT_STOPPED: 'stopped',
-                   NMT_OPERATIONAL: 'operational', NMT_PRE_OPERATIONAL: 'pre-operational'}
+#: NMT state of a slave while it boots (its boot-up message reports it).
+NMT_INITIALISING = cd.NMT_BOOT_UP
+NMT_STATE_NAMES = {NMT_INITIALISING: 'initialising', cd.NMT_STOPPED: 'stopped',
+                   cd.NMT_OPERATIONAL: 'operational', cd.NMT_PRE_OPERATIONAL: 'pre-operational'}
 
 # CiA 301 SDO abort codes used here.
 ABORT_TOGGLE = 0x05030000
@@ -238,9 +230,14 @@ class Slave:
         The SYNC COB-ID (1005h) is fixed at 80h, and the device only consumes SYNC (bit 30,
         SYNC producer, is refused).
         """
-        if index == 0x1005 and value != cd.SYNC_COB_ID:
+        if index == cd.COB_ID_SYNC and value != cd.SYNC_COB_ID:
             msg = (f'node {self.node_id} 0x1005: the SYNC COB-ID is fixed at '
                    f'0x{cd.SYNC_COB_ID:X} and this device does not produce SYNC')
+            raise SdoAbortError(ABORT_INVALID_VALUE, msg)
+        if index == cd.ERROR_BEHAVIOUR and subindex == cd.ERROR_BEHAVIOUR_COMMUNICATION_SUB \
+                and value not in (cd.ERROR_BEHAVIOUR_PRE_OPERATIONAL,
+                                  cd.ERROR_BEHAVIOUR_NO_CHANGE, cd.ERROR_BEHAVIOUR_STOPPED):
+            msg = f'node {self.node_id} 0x1029:1: error behaviour {value} is not 0, 1 or 2'
             raise SdoAbortError(ABORT_INVALID_VALUE, msg)
 
     def _written(self, index: int, subindex: int, value: Value) -> None:
@@ -258,6 +255,9 @@ class Slave:
     def _heartbeat_back(self) -> None:
         """React to the consumed heartbeat coming back after a loss."""
 
+    def _left_operational(self, code: int) -> None:
+        """React to leaving NMT operational (PDOs stop): ``code`` is the EMCY code of why."""
+
     # --- frames out ------------------------------------------------------------------------
     def send(self, cob_id: int, data: bytes) -> None:
         """Send one frame, unless the slave is silent."""
@@ -267,35 +267,35 @@ class Slave:
 
     def send_emcy(self, code: int) -> None:
         """Send an EMCY with ``code`` and the current error register (not in stopped)."""
-        if self.nmt_state in (NMT_OPERATIONAL, NMT_PRE_OPERATIONAL):
+        if self.nmt_state in (cd.NMT_OPERATIONAL, cd.NMT_PRE_OPERATIONAL):
             self.send(cd.EMCY_BASE + self.node_id,
-                      _EMCY.pack(code, self.get(0x1001) & 0xFF))
+                      _EMCY.pack(code, self.get(cd.ERROR_REGISTER) & 0xFF))
 
     @property
     def pdo_active(self) -> bool:
         """Whether PDOs are exchanged: NMT operational (and not silent)."""
-        return self.nmt_state == NMT_OPERATIONAL and not self.silent
+        return self.nmt_state == cd.NMT_OPERATIONAL and not self.silent
 
     # --- NMT -------------------------------------------------------------------------------
     def boot(self, now: float) -> None:
         """Power on (or reset node): every object to its default, boot-up, pre-operational."""
         self._defaults(0x0000, 0xFFFF)
-        self.values[(0x1018, 4)] = self.node_id  # a serial number per device
+        self.values[(cd.IDENTITY, 4)] = self.node_id  # a serial number per device
         self._reset_application()
         self._reset_communication(now)
 
     def _reset_communication(self, now: float) -> None:
         self._defaults(0x1000, 0x1FFF)
-        self.values[(0x1018, 4)] = self.node_id
-        self.values[(0x1001, 0)] = 0
+        self.values[(cd.IDENTITY, 4)] = self.node_id
+        self.values[(cd.ERROR_REGISTER, 0)] = 0
         self._consumer_seen = None
         self._consumer_lost = False
         self._upload = None
         self._download = None
         self.nmt_state = NMT_INITIALISING
         self.send(cd.HEARTBEAT_BASE + self.node_id, b'\x00')  # boot-up
-        self.nmt_state = NMT_PRE_OPERATIONAL
-        self._next_heartbeat = now + self.get(0x1017) * 1e-3
+        self.nmt_state = cd.NMT_PRE_OPERATIONAL
+        self._next_heartbeat = now + self.get(cd.PRODUCER_HEARTBEAT_TIME) * 1e-3
         self._update_flags()
 
     def on_nmt(self, data: bytes, now: float) -> None:
@@ -303,15 +303,20 @@ class Slave:
         if self.silent or len(data) < 2 or data[1] not in (0, self.node_id):
             return
         command = data[0]
-        if command == NMT_START:
-            self.nmt_state = NMT_OPERATIONAL
-        elif command == NMT_STOP:
-            self.nmt_state = NMT_STOPPED
-        elif command == NMT_ENTER_PRE_OPERATIONAL:
-            self.nmt_state = NMT_PRE_OPERATIONAL
-        elif command == NMT_RESET_NODE:
+        leaving = {cd.NMT_STOP: cd.NMT_STOPPED, cd.NMT_ENTER_PRE_OPERATIONAL:
+                   cd.NMT_PRE_OPERATIONAL, cd.NMT_RESET_COMMUNICATION: NMT_INITIALISING}
+        if self.nmt_state == cd.NMT_OPERATIONAL and command in leaving:
+            # Before the state changes: the application may still send its EMCY.
+            self._left_operational(cd.ERROR_COMMUNICATION)
+        if command == cd.NMT_START:
+            self.nmt_state = cd.NMT_OPERATIONAL
+        elif command == cd.NMT_STOP:
+            self.nmt_state = cd.NMT_STOPPED
+        elif command == cd.NMT_ENTER_PRE_OPERATIONAL:
+            self.nmt_state = cd.NMT_PRE_OPERATIONAL
+        elif command == cd.NMT_RESET_NODE:
             self.boot(now)
-        elif command == NMT_RESET_COMMUNICATION:
+        elif command == cd.NMT_RESET_COMMUNICATION:
             self._reset_communication(now)
 
     # --- heartbeats ------------------------------------------------------------------------
@@ -319,7 +324,7 @@ class Slave:
         """Take a heartbeat (or boot-up) of ``node_id``; only the consumed producer counts."""
         if self.silent:
             return
-        consumer = self.get(0x1016, 1)
+        consumer = self.get(cd.CONSUMER_HEARTBEAT_TIME, 1)
         if (consumer >> 16) & 0x7F != node_id or consumer & 0xFFFF == 0:
             return
         self._consumer_seen = now
@@ -329,7 +334,7 @@ class Slave:
 
     def poll(self, now: float) -> None:
         """Run the timers: heartbeat production and the consumer's timeout."""
-        period = self.get(0x1017) * 1e-3
+        period = self.get(cd.PRODUCER_HEARTBEAT_TIME) * 1e-3
         if period > 0.0 and now >= self._next_heartbeat:
             if self.heartbeat_enabled:
                 self.send(cd.HEARTBEAT_BASE + self.node_id, bytes((self.nmt_state,)))
@@ -337,13 +342,24 @@ class Slave:
             self._next_heartbeat += period
             if self._next_heartbeat <= now:
                 self._next_heartbeat = now + period
-        consumer = self.get(0x1016, 1)
+        consumer = self.get(cd.CONSUMER_HEARTBEAT_TIME, 1)
         timeout = (consumer & 0xFFFF) * 1e-3
         if (self._consumer_seen is not None and timeout > 0.0
                 and now - self._consumer_seen > timeout):
             self._consumer_seen = None
             self._consumer_lost = True
             self._heartbeat_lost()
+            self._communication_error(cd.ERROR_HEARTBEAT_LOST)
+
+    def _communication_error(self, code: int) -> None:
+        """Apply the error behaviour 1029h sub 1 (if the device has it) to the NMT state."""
+        behaviour = self.values.get((cd.ERROR_BEHAVIOUR, cd.ERROR_BEHAVIOUR_COMMUNICATION_SUB))
+        if self.nmt_state != cd.NMT_OPERATIONAL or behaviour is None \
+                or behaviour == cd.ERROR_BEHAVIOUR_NO_CHANGE:
+            return
+        self._left_operational(code)
+        self.nmt_state = cd.NMT_STOPPED if behaviour == cd.ERROR_BEHAVIOUR_STOPPED \
+            else cd.NMT_PRE_OPERATIONAL
 
     @property
     def consumer_lost(self) -> bool:
@@ -353,7 +369,7 @@ class Slave:
     # --- SDO server ------------------------------------------------------------------------
     def on_sdo(self, data: bytes) -> None:
         """Serve one SDO request (COB-ID 600h + node ID); answer on 580h + node ID."""
-        if self.silent or self.nmt_state == NMT_STOPPED or len(data) != 8:
+        if self.silent or self.nmt_state == cd.NMT_STOPPED or len(data) != 8:
             return
         ccs = data[0] >> 5
         try:
@@ -470,8 +486,10 @@ class Slave:
             06040041h for a different mapped object, 06090030h for any other change.
 
         """
-        assert isinstance(value, int)
         where = f'node {self.node_id} 0x{index:04X}:{subindex}'
+        if not isinstance(value, int):
+            msg = f'{where}: a PDO parameter is a number, not {value!r}'
+            raise SdoAbortError(ABORT_INVALID_VALUE, msg)
         if index in mappings:
             layout = mappings[index]
             if subindex == 0:
@@ -486,7 +504,9 @@ class Slave:
                        f'not 0x{value:08X}')
                 raise SdoAbortError(ABORT_NOT_MAPPABLE, msg)
         elif index in cob_ids:
-            if subindex == 1 and value & 0x7FFFFFFF != cob_ids[index]:
+            # Bits 31 (PDO not valid) and 30 (no RTR) are free; the identifier is fixed.
+            if subindex == 1 and value & ~(cd.PDO_COB_ID_INVALID | cd.PDO_COB_ID_NO_RTR) \
+                    != cob_ids[index]:
                 msg = f'{where}: the COB-ID is fixed at 0x{cob_ids[index]:X}, not 0x{value:X}'
                 raise SdoAbortError(ABORT_INVALID_VALUE, msg)
             if subindex == 2 and value != 1:
@@ -498,5 +518,5 @@ class Slave:
 
     def pdo_enabled(self, communication: int, mapping: int) -> bool:
         """Whether a PDO is valid: COB-ID bit 31 clear and a mapping in place."""
-        return (not self.get(communication, 1) & 0x80000000
+        return (not self.get(communication, 1) & cd.PDO_COB_ID_INVALID
                 and self.get(mapping, 0) != 0)

@@ -36,7 +36,7 @@ FAULT = 'fault'
 #: A statusword that matches no CiA 402 state (a broken drive or a corrupted PDO).
 UNKNOWN = 'unknown'
 
-# Ordered as the CiA 402 table: the first match wins (as in can_dictionary.cia402_state).
+# Ordered as the CiA 402 table: the first match wins (the order of can_dictionary.STATES).
 _STATES = tuple((mask, value, name) for name, (mask, value) in cd.STATES.items())
 
 

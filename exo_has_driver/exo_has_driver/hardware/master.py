@@ -4,37 +4,53 @@ One :class:`Master` serves N joints (a CiA 402 drive and a sensor board each) on
 bus, as ``config/canopen/README.md`` specifies.
 
 Start (:meth:`Master.start`, blocking, each wait bounded): the master's heartbeat starts; NMT
-reset communication of every slave and wait for their boot-ups; SDO configuration of each (the
-identity 1018h and device type 1000h checked, the SYNC COB-ID checked, the cycle period,
-heartbeat consumer and producer times written; on the drives modes of operation 3, quick stop
-option code 2 and the profile ramps; each PDO's COB-ID, transmission type and mapping read and,
-where they differ from :mod:`exo_has_driver.can_dictionary`, rewritten per CiA 301: PDO invalid,
-mapping count 0, entries, count, PDO valid); NMT start and wait for every heartbeat to report
-operational; then the I/O thread runs and the drives are taken through fault reset and the
-enable sequence to operation enabled at zero speed. A device that does not answer raises
-:class:`CanOpenTimeoutError` naming the node and the object or step.
+reset communication of every slave and wait for each one's boot-up message; SDO configuration
+of each (the identity 1018h and device type 1000h checked, the SYNC COB-ID checked, consumed;
+the cycle period, heartbeat consumer and producer times written; on the drives first the
+abort connection option code 6007h (quick stop) and error behaviour 1029h (no NMT change),
+see :data:`ABORT_CONNECTION_OPTION` and :data:`ERROR_BEHAVIOUR`, then modes of operation 3,
+quick stop option code 2 and the profile ramps; each PDO's COB-ID (its 11-bit identifier and
+valid bit 31; bit 30 is the device's), transmission type and mapping read and, where they
+differ from :mod:`exo_has_driver.can_dictionary`, rewritten per CiA 301: PDO invalid, mapping
+count 0, entries, count, PDO valid; last the drive's statusword and 603Fh: a drive in fault
+with another code than 8130h, the master's heartbeat lost, ends the start naming the code);
+NMT start and wait for every heartbeat to report operational; then the I/O thread runs and
+the drives are taken through the enable sequence (those in fault with 8130h through one fault
+reset first) to operation enabled at zero speed. A device that does not answer raises
+:class:`CanOpenTimeoutError` naming the node and the object or step; a bus that fails to
+receive, :class:`CanBusError`.
 
 Cycle (the I/O thread, which alone owns the bus and the protocol state): it receives frames until
 the next SYNC is due, then checks the slaves, writes every drive's RPDO1 (controlword from
-:mod:`.cia402`, target velocity from the newest command) and sends the SYNC; the master's
-heartbeat goes out every producer period. TPDOs are decoded with the structs of
-``can_dictionary`` as they come; once a joint's three TPDOs are in, a :class:`JointSample` is
-queued, stamped with the receive time of the sensor board's TPDO1 (``Message.timestamp``: the
-kernel's on SocketCAN). The caller's thread only swaps a command tuple (:meth:`set_command`),
-appends a request, or pops the queues (:meth:`take_samples`, :meth:`take_events`): it never
-waits on the bus.
+:mod:`.cia402`, target velocity from the newest command, clamped to the joint's
+``motor_speed_max``) and sends the SYNC; the master's heartbeat goes out every producer
+period. TPDOs are decoded with the structs of ``can_dictionary`` as they come; once a joint's
+three TPDOs are in, a :class:`JointSample` is queued, stamped with the receive time of the
+sensor board's TPDO1 (``Message.timestamp``: the kernel's on SocketCAN). A failed receive is a
+bus fault; after :data:`RECEIVE_FAILURES_MAX` in a row the thread ends (:attr:`Master.running`
+false, :attr:`Master.failure` the error). The caller's thread only swaps a command tuple
+(:meth:`set_command`), appends a request, or pops the queues (:meth:`take_samples`,
+:meth:`take_events`): it never waits on the bus.
 
 Supervision, each a FATAL :class:`~exo_has_driver.safety.Event` that latches the stop:
-a drive in fault or an EMCY (DRIVE_FAULT, value the error code; a sensor board's EMCY is a
+a drive in fault or an EMCY, a drive that leaves operation enabled by itself while enabled, a
+statusword of no CiA 402 state (DRIVE_FAULT, value the error code; a sensor board's EMCY is a
 SENSOR_FAULT), a heartbeat older than the consumer time or a slave that reports another NMT
 state than operational or boots (HEARTBEAT_LOST), no TPDO from a slave for ``missing_syncs``
-SYNC periods, a failed send, a bus-off or error-passive bus (BUS_OFF), a sensor channel without
-reading, flagged by the board or out of range (SENSOR_FAULT), an e-stop request (E_STOP). A
-condition is reported once while it lasts. While latched every drive is sent quick stop (it
-brakes on its quick stop ramp to switch on disabled) and then disable voltage, target 0.
-:meth:`request_reset` releases the latch when no condition holds (a RESET event; else a WARN
-event naming what holds): drives in fault get one rising edge of the fault reset bit and, like
-the others, the enable sequence again, at zero speed until the next command.
+SYNC periods, a failed send or receive, a bus-off or error-passive bus (BUS_OFF), a sensor
+channel without reading, flagged by the board or out of range (SENSOR_FAULT), an e-stop
+request (E_STOP). One function lists the conditions that hold (:meth:`Master._conditions`):
+supervision latches them, a reset is refused while they hold. A condition is reported once
+while it lasts. While latched every drive is sent quick stop (it brakes on its quick stop ramp
+to switch on disabled) and then disable voltage, target 0, and a slave whose heartbeat reports
+pre-operational or stopped is sent NMT start, so that these RPDOs reach it.
+:meth:`request_reset` works in two phases: refused (a WARN event naming what holds) while a
+condition other than a drive in fault holds; else the drives in fault get one rising edge of
+the fault reset bit while the stop still holds, and once every drive has left fault (within
+:data:`FAULT_RESET_TIME`) the latch is released (a RESET event) and the drives go through the
+enable sequence again, at zero speed until the next command; a drive still in fault then
+refuses the reset (WARN). A slave that booted while running holds until the driver restarts:
+its configuration is lost.
 
 Valve mode: the hardware does not measure it, so it is inferred as the plant model defines it
 (exo_has_sim: relief while the safety valve passes flow, free when the motor is stopped and the
@@ -59,7 +75,12 @@ import can
 
 from exo_has_driver import can_dictionary as cd
 from exo_has_driver import safety
-from exo_has_driver.errors import CanOpenError, CanOpenTimeoutError, HardwareConfigError
+from exo_has_driver.errors import (
+    CanBusError,
+    CanOpenError,
+    CanOpenTimeoutError,
+    HardwareConfigError,
+)
 from exo_has_driver.hardware import cia402
 from exo_has_driver.hardware.bus import bus_state_fault, error_frame_fault
 from exo_has_driver.hardware.sdo import SdoClient, object_name
@@ -84,6 +105,27 @@ ERROR_FRAME_HOLD = 1.0
 BUS_STATE_EVERY = 10
 #: Samples kept for the caller: a second of four joints at 200 Hz.
 SAMPLE_QUEUE = 800
+#: Failed receives in a row after which the I/O thread gives up (after a failure it waits for
+#: the next SYNC before it tries again: 0.5 s at 200 Hz).
+RECEIVE_FAILURES_MAX = 100
+#: Frames handled at most between two SYNCs' catch-up drains (a flooded bus must not hold up
+#: the SYNC).
+DRAIN_MAX = 256
+#: Share of the bit rate the cyclic frames and heartbeats may take: the rest is for SDO, EMCY,
+#: retransmissions, and the TPDOs must be in before the next SYNC.
+MAX_BUS_LOAD = 0.8
+#: Error codes of a drive fault that start-up clears by itself: the master's heartbeat lost
+#: (the previous master's, or this one's before it started).
+AUTO_RESET_CODES = frozenset({cd.ERROR_HEARTBEAT_LOST})
+#: Abort connection option code 6007h written to every drive: on a lost master heartbeat or
+#: leaving NMT operational the drive quick stops (brakes on 6085h within 14 ms at full speed,
+#: then switch on disabled with 605Ah = 2) rather than coasting (2) or a fault reaction (1,
+#: which on a COPLEY disables the motor at once): the HAS then falls to free mode standing.
+ABORT_CONNECTION_OPTION = cd.ABORT_CONNECTION_QUICK_STOP
+#: Error behaviour 1029h sub 1 written to every drive: a communication error leaves the NMT
+#: state alone (not pre-operational, CiA 301's default), so that once the bus is back the
+#: master's RPDOs (quick stop, disable voltage) apply at once; 6007h stops the motor meanwhile.
+ERROR_BEHAVIOUR = cd.ERROR_BEHAVIOUR_NO_CHANGE
 
 _NMT_STATE_NAMES = {cd.NMT_BOOT_UP: 'boot-up', cd.NMT_STOPPED: 'stopped',
                     cd.NMT_OPERATIONAL: 'operational',
@@ -98,6 +140,9 @@ _SENSOR_TPDO2 = 4
 _ALL_TPDOS = _DRIVE_TPDO | _SENSOR_TPDO1 | _SENSOR_TPDO2
 _NAN = math.nan
 _DEFAULT_UNITS = DriveUnits()
+# Keys of the conditions that are reported again after they stopped holding for a while.
+_CONDITION_KEYS = frozenset({'missing', 'heartbeat', 'sensor', 'bus state', 'send',
+                             'error frame', 'receive'})
 _T = TypeVar('_T')
 _Key = tuple[object, ...]
 
@@ -120,6 +165,8 @@ class JointConfig:
         Pressure under which the compact valve falls to free mode [Pa].
     stopped_speed : float
         Motor speed under which the motor counts as stopped [rad/s].
+    motor_speed_max : float
+        Largest pump speed commanded [rad/s]; faster commands are clamped to it.
 
     """
 
@@ -130,6 +177,7 @@ class JointConfig:
     relief_pressure: float
     drop_pressure: float
     stopped_speed: float
+    motor_speed_max: float = math.inf
 
     @classmethod
     def from_parameters(cls, name: str, params: HasParameters, drive_id: int | None = None,
@@ -150,17 +198,22 @@ class JointConfig:
                    f'{", ".join(cd.DRIVE_NODE_IDS)}')
             raise HardwareConfigError(msg) from None
         return cls(name, drive, sensor, params.stroke, params.relief_pressure,
-                   params.valve_drop_pressure, params.valve_release_speed)
+                   params.valve_drop_pressure, params.valve_release_speed,
+                   params.motor_speed_max)
 
 
 @dataclass(frozen=True)
 class MasterConfig:
     """Settings of the master; times in seconds, accelerations in rad/s^2 of the pump.
 
+    ``bitrate`` [bit/s] is the bus's: the SYNC cycle's frames (see :func:`bits_per_sync`) and
+    the heartbeats must fit in :data:`MAX_BUS_LOAD` of it.
+
     Raises
     ------
     HardwareConfigError
-        Naming the first setting out of range, or a node ID used twice.
+        Naming the first setting out of range, a node ID used twice, or a bus load the bit
+        rate cannot carry.
 
     """
 
@@ -177,6 +230,7 @@ class MasterConfig:
     boot_timeout: float = 2.0
     enable_timeout: float = 2.0
     master_id: int = cd.MASTER_NODE_ID
+    bitrate: int = 1_000_000
 
     def __post_init__(self) -> None:
         if not self.joints:
@@ -219,6 +273,36 @@ class MasterConfig:
             raise HardwareConfigError(msg)
         self.units.acceleration_to_drive(self.acceleration)
         self.units.acceleration_to_drive(self.quick_stop_deceleration)
+        if isinstance(self.bitrate, bool) or not isinstance(self.bitrate, int) \
+                or self.bitrate <= 0:
+            msg = f'bitrate = {self.bitrate!r} must be a positive integer [bit/s]'
+            raise HardwareConfigError(msg)
+        per_sync = bits_per_sync(len(self.joints))
+        load = per_sync / self.period \
+            + (2 * len(self.joints) + 1) * frame_bits(1) / self.heartbeat_period
+        if load > MAX_BUS_LOAD * self.bitrate:
+            msg = (f'the bus cannot carry a SYNC every {self.period * 1e3:g} ms: '
+                   f'{len(self.joints)} joints take about {per_sync} bit per SYNC, '
+                   f'{load * 1e-3:.0f} kbit/s with the heartbeats, over '
+                   f'{MAX_BUS_LOAD:.0%} of {self.bitrate * 1e-3:g} kbit/s; lower the rate')
+            raise HardwareConfigError(msg)
+
+
+def frame_bits(data_bytes: int) -> int:
+    """Bits a base-format CAN frame takes on the bus at worst, stuff bits and gap included.
+
+    44 bits of frame and 3 of interframe space, 8 per data byte, and one stuff bit per four
+    of the 34 + 8 n bits that are stuffed (the worst case).
+    """
+    stuffed = 34 + 8 * data_bytes
+    return 47 + 8 * data_bytes + (stuffed - 1) // 4
+
+
+def bits_per_sync(joints: int) -> int:
+    """Bits of one SYNC cycle at worst: per joint an RPDO and three TPDOs, and the SYNC."""
+    per_joint = frame_bits(cd.DRIVE_RPDO1.size) + frame_bits(cd.DRIVE_TPDO1.size) \
+        + frame_bits(cd.SENSOR_TPDO1.size) + frame_bits(cd.SENSOR_TPDO2.size)
+    return joints * per_joint + frame_bits(0)
 
 
 @dataclass(frozen=True, slots=True)
@@ -283,8 +367,18 @@ def infer_valve_mode(joint: JointConfig, drive_state: str, motor_speed: float,
 class _Slave:
     """What the master tracks of one slave."""
 
-    __slots__ = ('heartbeat_state', 'heartbeat_time', 'joint', 'label', 'missing', 'node',
-                 'seen')
+    __slots__ = (
+        'booted',
+        'heartbeat_state',
+        'heartbeat_time',
+        'joint',
+        'label',
+        'missing',
+        'nmt_start_time',
+        'node',
+        'rebooted',
+        'seen',
+    )
 
     def __init__(self, node: int, joint: str, role: str) -> None:
         self.node = node
@@ -294,6 +388,9 @@ class _Slave:
         self.heartbeat_state: int | None = None
         self.seen = True
         self.missing = 0
+        self.booted = False  # a boot-up came since the start's reset communication
+        self.rebooted = False  # a boot-up came while running: its configuration is lost
+        self.nmt_start_time = -math.inf  # when the latch last sent it NMT start
 
 
 class _Joint:
@@ -305,6 +402,7 @@ class _Joint:
         'current',
         'drive',
         'emcy_code',
+        'enabled_syncs',
         'fault',
         'fault_reset',
         'fault_reset_until',
@@ -335,6 +433,7 @@ class _Joint:
         self.fault_reset = False
         self.fault_reset_until = -1.0
         self.emcy_code: int | None = None
+        self.enabled_syncs = 0  # SYNCs in a row sent with enable operation
         self.received = 0
         self.stamp = 0.0
         self.velocity = 0
@@ -369,9 +468,8 @@ class Master:
         self._clock = clock
         self._units = config.units
         self._joints = [_Joint(joint) for joint in config.joints]
-        self._by_name = {joint.config.name: joint for joint in self._joints}
+        self._indices = {joint.config.name: index for index, joint in enumerate(self._joints)}
         self._slaves = [slave for joint in self._joints for slave in (joint.drive, joint.sensor)]
-        self._by_node = {slave.node: slave for slave in self._slaves}
         now = clock()
         # (speed [rad/s], enable, receive time [s]) per joint; swapped whole by set_command.
         self._commands: list[tuple[float, bool, float]] = [(0.0, True, now)] * len(self._joints)
@@ -400,6 +498,11 @@ class Master:
         self._frame_fault: str | None = None
         self._frame_fault_time = -math.inf
         self._state_fault: str | None = None
+        self._receive_fault: str | None = None
+        self._receive_fault_time = -math.inf
+        self._receive_failures = 0
+        # End of the second phase of a reset: drives sent a fault reset edge must leave fault.
+        self._reset_until: float | None = None
         self.failure: BaseException | None = None
 
     # --- the caller's side -------------------------------------------------------------------
@@ -435,8 +538,9 @@ class Master:
                     now: float | None = None) -> None:
         """Take a joint's newest command: pump speed [rad/s], drive enabled.
 
-        A NaN or infinite speed disables the drive (as a stop command would). Cheap and
-        non-blocking: it is used at the next SYNC.
+        A NaN or infinite speed disables the drive (as a stop command would); a speed over the
+        joint's ``motor_speed_max`` is clamped to it. Cheap and non-blocking: it is used at
+        the next SYNC.
 
         Raises
         ------
@@ -447,7 +551,9 @@ class Master:
         index = self._index(joint)
         t = self._clock() if now is None else now
         if math.isfinite(motor_speed):
-            self._commands[index] = (float(motor_speed), bool(enable), t)
+            limit = self._joints[index].config.motor_speed_max
+            self._commands[index] = (min(max(float(motor_speed), -limit), limit), bool(enable),
+                                     t)
         else:
             self._commands[index] = (0.0, False, t)
 
@@ -477,7 +583,10 @@ class Master:
             If a slave does not boot, answer an SDO, report operational, or a drive does not
             reach operation enabled in time; the node and object or step are named.
         CanOpenError
-            On an SDO abort, a wrong identity, or a fault while enabling.
+            On an SDO abort, a wrong identity, a drive in a fault other than the master's
+            heartbeat lost (8130h, cleared by a fault reset), or a fault while enabling.
+        CanBusError
+            If the bus fails to receive.
 
         """
         if self._thread is not None:
@@ -485,6 +594,10 @@ class Master:
             raise CanOpenError(msg)
         try:
             self._start_slaves()
+        except can.CanError as exc:
+            self._send_best_effort_stop()
+            msg = f'the CAN bus failed while starting the slaves: {exc}'
+            raise CanBusError(msg) from exc
         except BaseException:
             self._send_best_effort_stop()
             raise
@@ -531,20 +644,25 @@ class Master:
     def _start_slaves(self) -> None:
         config = self.config
         self._heartbeat_due = self._clock()
-        self._pump(0.0)  # forget frames from before the start
+        for _ in range(DRAIN_MAX):  # forget frames from before the start (old boot-ups)
+            if self.bus.recv(0.0) is None:
+                break
         for slave in self._slaves:
             slave.heartbeat_state = None
+            slave.booted = False
             self._send_nmt(cd.NMT_RESET_COMMUNICATION, slave.node)
-        self._pump(config.boot_timeout, lambda: all(
-            s.heartbeat_state is not None for s in self._slaves))
-        silent = [s.label for s in self._slaves if s.heartbeat_state is None]
+        # Only the boot-up counts: a heartbeat from before the reset does not say it was done.
+        self._pump(config.boot_timeout, lambda: all(s.booted for s in self._slaves))
+        silent = [s.label for s in self._slaves if not s.booted]
         if silent:
             msg = (f'no boot-up within {config.boot_timeout:g} s of the NMT reset '
                    f'communication from {", ".join(silent)}: powered, on the bus, at that ID?')
             raise CanOpenTimeoutError(msg)
         sdo = SdoClient(self._exchange, timeout=config.sdo_timeout)
+        in_fault = []
         for joint in self._joints:
-            self._configure_drive(sdo, joint.drive.node)
+            if self._configure_drive(sdo, joint):
+                in_fault.append(joint)
             self._configure_sensor(sdo, joint.sensor.node)
         for slave in self._slaves:
             slave.heartbeat_state = None
@@ -563,9 +681,8 @@ class Master:
             slave.heartbeat_time = now
             slave.seen = True
             slave.missing = 0
-        for joint in self._joints:
-            # Drives may be in fault from before (a lost master heartbeat): one reset edge.
-            self._arm_fault_reset(joint, now)
+        for joint in in_fault:
+            self._arm_fault_reset(joint, now)  # in fault from a lost master heartbeat only
         self._operational = True
 
     def _configure_common(self, sdo: SdoClient, node: int, product: int,
@@ -583,9 +700,10 @@ class Master:
                    f'0x{found_type:08X}, expected 0x{device_type:08X}')
             raise CanOpenError(msg)
         sync_cob = sdo.read_unsigned(node, cd.COB_ID_SYNC, 0)
-        if sync_cob & 0x7FF != cd.SYNC_COB_ID:
+        if sync_cob & cd.COB_ID_MASK != cd.SYNC_COB_ID or sync_cob & cd.SYNC_PRODUCER:
             msg = (f'node {node}: COB-ID SYNC {object_name(cd.COB_ID_SYNC, 0)} is '
-                   f'0x{sync_cob:08X}, expected 0x{cd.SYNC_COB_ID:X}')
+                   f'0x{sync_cob:08X}, expected 0x{cd.SYNC_COB_ID:X} consumed (bit 30 clear: '
+                   f'only the master produces SYNC)')
             raise CanOpenError(msg)
         sdo.write_unsigned(node, cd.CYCLE_PERIOD, 0, round(config.period * 1e6), 4)
         consumer = (config.master_id << 16) | round(config.heartbeat_timeout * 1e3)
@@ -593,11 +711,24 @@ class Master:
         sdo.write_unsigned(node, cd.PRODUCER_HEARTBEAT_TIME, 0,
                            round(config.heartbeat_period * 1e3), 2)
 
-    def _configure_drive(self, sdo: SdoClient, node: int) -> None:
+    def _configure_drive(self, sdo: SdoClient, joint: _Joint) -> bool:
+        """Configure a drive; return whether it is in a fault start-up may reset (8130h).
+
+        Raises
+        ------
+        CanOpenError
+            For a drive in any other fault, naming its error code 603Fh.
+
+        """
+        node = joint.drive.node
         self._configure_common(sdo, node, cd.DRIVE_PRODUCT_CODE, cd.DRIVE_DEVICE_TYPE)
         units = self._units
+        # First what a lost connection does, so that a lost master stops the motor from now on.
+        sdo.write_signed(node, cd.ABORT_CONNECTION_OPTION_CODE, 0, ABORT_CONNECTION_OPTION, 2)
+        sdo.write_unsigned(node, cd.ERROR_BEHAVIOUR, cd.ERROR_BEHAVIOUR_COMMUNICATION_SUB,
+                           ERROR_BEHAVIOUR, 1)
         sdo.write_signed(node, cd.MODES_OF_OPERATION, 0, cd.PROFILE_VELOCITY_MODE, 1)
-        sdo.write_signed(node, cd.QUICK_STOP_OPTION_CODE, 0, 2, 2)
+        sdo.write_signed(node, cd.QUICK_STOP_OPTION_CODE, 0, cd.QUICK_STOP_RAMP_THEN_DISABLE, 2)
         ramp = units.acceleration_to_drive(self.config.acceleration)
         sdo.write_unsigned(node, cd.PROFILE_ACCELERATION, 0, ramp, 4)
         sdo.write_unsigned(node, cd.PROFILE_DECELERATION, 0, ramp, 4)
@@ -611,6 +742,18 @@ class Master:
             raise CanOpenError(msg)
         for pdo in _DRIVE_PDOS:
             self._configure_pdo(sdo, node, *pdo)
+        state = cia402.decode_state(sdo.read_unsigned(node, cd.STATUSWORD, 0))
+        if not cia402.is_fault(state):
+            return False
+        code = sdo.read_unsigned(node, cd.ERROR_CODE, 0)
+        joint.emcy_code = code
+        if code not in AUTO_RESET_CODES:
+            msg = (f'{joint.drive.label} is in {state} with error code 0x{code:04X} '
+                   f'{cd.ERROR_CODES.get(code, "(unknown)")} ({object_name(cd.ERROR_CODE, 0)})'
+                   f': the driver clears only a lost master heartbeat (0x8130) by itself; '
+                   f'remove the cause and clear the fault, then start again')
+            raise CanOpenError(msg)
+        return True
 
     def _configure_sensor(self, sdo: SdoClient, node: int) -> None:
         self._configure_common(sdo, node, cd.SENSOR_PRODUCT_CODE, cd.SENSOR_DEVICE_TYPE)
@@ -619,25 +762,30 @@ class Master:
 
     def _configure_pdo(self, sdo: SdoClient, node: int, communication: int, mapping: int,
                        base: int, layout: Iterable[tuple[int, int, int]]) -> None:
-        """Check a PDO against can_dictionary; rewrite it per CiA 301 where it differs."""
+        """Check a PDO against can_dictionary; rewrite it per CiA 301 where it differs.
+
+        The COB-ID matches on its 11-bit identifier and bit 31 (valid); bit 30 (no RTR) is
+        the device's and kept.
+        """
         wanted = [(index << 16) | (sub << 8) | bits for index, sub, bits in layout]
         cob_id = base + node
         found_cob = sdo.read_unsigned(node, communication, 1)
         found_type = sdo.read_unsigned(node, communication, 2)
         count = sdo.read_unsigned(node, mapping, 0)
         entries = [sdo.read_unsigned(node, mapping, sub) for sub in range(1, count + 1)]
-        if found_cob == cob_id and found_type == cd.PDO_TRANSMISSION_SYNCHRONOUS \
-                and entries == wanted:
+        no_rtr = found_cob & cd.PDO_COB_ID_NO_RTR
+        if found_cob & ~cd.PDO_COB_ID_NO_RTR == cob_id \
+                and found_type == cd.PDO_TRANSMISSION_SYNCHRONOUS and entries == wanted:
             return
         # CiA 301: make the PDO invalid, set the mapping count to 0, write the entries, the
         # count, then the COB-ID with the PDO valid again.
-        sdo.write_unsigned(node, communication, 1, cob_id | cd.PDO_COB_ID_INVALID, 4)
+        sdo.write_unsigned(node, communication, 1, cob_id | no_rtr | cd.PDO_COB_ID_INVALID, 4)
         sdo.write_unsigned(node, communication, 2, cd.PDO_TRANSMISSION_SYNCHRONOUS, 1)
         sdo.write_unsigned(node, mapping, 0, 0, 1)
         for sub, entry in enumerate(wanted, start=1):
             sdo.write_unsigned(node, mapping, sub, entry, 4)
         sdo.write_unsigned(node, mapping, 0, len(wanted), 1)
-        sdo.write_unsigned(node, communication, 1, cob_id, 4)
+        sdo.write_unsigned(node, communication, 1, cob_id | no_rtr, 4)
 
     def _exchange(self, node: int, request: bytes | None, timeout: float) -> bytes | None:
         """Send an SDO request and wait for the node's answer (the SdoClient's transport)."""
@@ -668,23 +816,27 @@ class Master:
     # --- the I/O thread --------------------------------------------------------------------
     def _run(self) -> None:
         period = self.config.period
-        bus = self.bus
         on_frame = self._on_frame
+        receive = self._receive
         clock = self._clock
         next_sync = clock()
         try:
             while not self._stop_thread.is_set():
                 now = clock()
                 if now < next_sync:
-                    message = bus.recv(next_sync - now)
+                    message, ok = receive(next_sync - now)
                     if message is not None:
                         on_frame(message)
+                    elif not ok:
+                        self._stop_thread.wait(next_sync - now)  # no busy loop on a dead bus
                     continue
-                # Take whatever waited (after a stall too) before judging the slaves.
-                message = bus.recv(0.0)
-                while message is not None:
+                # Take what waited (after a stall too) before judging the slaves; bounded, so
+                # that a flooded bus cannot hold up the SYNC.
+                for _ in range(DRAIN_MAX):
+                    message, ok = receive(0.0)
+                    if message is None:
+                        break
                     on_frame(message)
-                    message = bus.recv(0.0)
                 self._cycle(clock())
                 next_sync += period
                 if next_sync < now:
@@ -695,6 +847,31 @@ class Master:
                         f'the CAN master loop failed: {exc!r}')
             self._send_best_effort_stop()
 
+    def _receive(self, timeout: float) -> tuple[can.Message | None, bool]:
+        """Receive a frame: (message or None, whether the bus answered).
+
+        A failed receive (a bad datagram, a socket error) is a bus fault that holds for
+        :data:`ERROR_FRAME_HOLD`; :data:`RECEIVE_FAILURES_MAX` in a row end the loop.
+
+        Raises
+        ------
+        CanBusError
+            After :data:`RECEIVE_FAILURES_MAX` failed receives in a row.
+
+        """
+        try:
+            message = self.bus.recv(timeout)
+        except can.CanError as exc:
+            self._receive_failures += 1
+            self._receive_fault = f'receiving from the CAN bus failed: {exc}'
+            self._receive_fault_time = self._clock()
+            if self._receive_failures >= RECEIVE_FAILURES_MAX:
+                msg = f'{self._receive_failures} receives in a row failed, the last: {exc}'
+                raise CanBusError(msg) from exc
+            return None, False
+        self._receive_failures = 0
+        return message, True
+
     def _cycle(self, now: float) -> None:
         while self._requests:
             kind, text = self._requests.popleft()
@@ -704,6 +881,8 @@ class Master:
             else:
                 self._reset(now)
         self._supervise(now)
+        if self._reset_until is not None:
+            self._finish_reset(now)
         units = self._units
         command_timeout = self.config.command_timeout
         for index, joint in enumerate(self._joints):
@@ -715,10 +894,12 @@ class Master:
                 want = cia402.Want.ENABLED if enable else cia402.Want.DISABLED
                 if now - received > command_timeout:
                     speed = 0.0  # no fresh command: hold still, the watchdog reports it
-            reset = joint.fault_reset and not self._latched
-            cw = cia402.controlword(joint.state, want, joint.last_cw, reset)
+            if joint.fault_reset and now > joint.fault_reset_until:
+                joint.fault_reset = False  # the edge's time is up: no later reset by surprise
+            cw = cia402.controlword(joint.state, want, joint.last_cw, joint.fault_reset)
             if cw == cd.CW_FAULT_RESET:
                 joint.fault_reset = False
+            joint.enabled_syncs = joint.enabled_syncs + 1 if cw == cd.CW_ENABLE_OPERATION else 0
             target = units.velocity_to_drive(speed) \
                 if want is cia402.Want.ENABLED and joint.state == cia402.OPERATION_ENABLED \
                 else 0
@@ -733,48 +914,80 @@ class Master:
         self._produce_heartbeat(now)
 
     def _supervise(self, now: float) -> None:
-        config = self.config
         for slave in self._slaves:
             # TPDOs of the previous SYNC.
             if slave.seen:
                 slave.missing = 0
             else:
                 slave.missing += 1
-            key = ('missing', slave.node)
-            if slave.missing >= config.missing_syncs:
-                self._latch(key, slave.joint, safety.KIND_BUS_OFF, _NAN, _NAN,
-                            f'{slave.label}: no TPDO for {slave.missing} SYNC periods')
-            else:
-                self._active.discard(key)
-            lost = self._heartbeat_fault(slave, now)
-            key = ('heartbeat', slave.node)
-            if lost is not None:
-                age = now - slave.heartbeat_time if slave.heartbeat_time is not None else _NAN
-                self._latch(key, slave.joint, safety.KIND_HEARTBEAT_LOST, age,
-                            config.heartbeat_timeout, f'{slave.label}: {lost}')
-            else:
-                self._active.discard(key)
-        for joint in self._joints:
-            if cia402.is_fault(joint.state) and now > joint.fault_reset_until:
-                code = joint.emcy_code
-                name = cd.ERROR_CODES.get(code, 'unknown error') if code is not None else ''
-                what = f'error code 0x{code:04X} {name}' if code is not None \
-                    else 'no EMCY received'
-                self._latch(('drive', joint.config.name), joint.config.name,
-                            safety.KIND_DRIVE_FAULT, float(code) if code is not None else _NAN,
-                            _NAN, f'{joint.drive.label} in {joint.state} ({what})')
         if self._sync_count % BUS_STATE_EVERY == 0:
             self._state_fault = bus_state_fault(self.bus)
-        bus_checks: tuple[tuple[_Key, str | None], ...] = (
-            (('bus state',), self._state_fault), (('send',), self._send_fault()),
-            (('error frame',), self._error_frame_fault(now)))
-        for bus_key, text in bus_checks:
+        conditions = self._conditions(now)
+        for key, joint, kind, value, limit, text in conditions:
+            self._latch(key, joint, kind, value, limit, text)
+        holding = {condition[0] for condition in conditions}
+        self._active -= {key for key in self._active
+                         if key[0] in _CONDITION_KEYS and key not in holding}
+        if self._latched:
+            self._restart_slaves(now)
+
+    def _restart_slaves(self, now: float) -> None:
+        """Send NMT start to slaves out of operational, so that the latch's RPDOs apply.
+
+        A drive in pre-operational or stopped ignores RPDOs: it would keep running on its last
+        target velocity (unless its abort connection option stops it). Once a heartbeat
+        period, for the slave's state to show.
+        """
+        for slave in self._slaves:
+            if slave.heartbeat_state in (cd.NMT_PRE_OPERATIONAL, cd.NMT_STOPPED) \
+                    and now - slave.nmt_start_time >= self.config.heartbeat_period:
+                slave.nmt_start_time = now
+                self._send_nmt(cd.NMT_START, slave.node)
+
+    def _conditions(self, now: float) -> list[tuple[_Key, str, int, float, float, str]]:
+        """List the fault conditions that hold now: what supervision latches, what forbids a reset.
+
+        Each as (key, joint, kind, value, limit, text). A drive in fault counts once its
+        fault reset time is over. Events that are not states (an EMCY, a drive leaving
+        operation enabled, an e-stop) are latched where they come.
+        """
+        config = self.config
+        conditions: list[tuple[_Key, str, int, float, float, str]] = []
+        for slave in self._slaves:
+            lost = self._heartbeat_fault(slave, now)
+            if lost is not None:
+                age = now - slave.heartbeat_time if slave.heartbeat_time is not None else _NAN
+                conditions.append((('heartbeat', slave.node), slave.joint,
+                                   safety.KIND_HEARTBEAT_LOST, age, config.heartbeat_timeout,
+                                   f'{slave.label}: {lost}'))
+            if slave.missing >= config.missing_syncs:
+                conditions.append((('missing', slave.node), slave.joint, safety.KIND_BUS_OFF,
+                                   _NAN, _NAN,
+                                   f'{slave.label}: no TPDO for {slave.missing} SYNC periods'))
+        for joint in self._joints:
+            name = joint.config.name
+            if cia402.is_fault(joint.state) and now > joint.fault_reset_until:
+                code = joint.emcy_code
+                conditions.append((('drive', name), name, safety.KIND_DRIVE_FAULT,
+                                   float(code) if code is not None else _NAN, _NAN,
+                                   f'{joint.drive.label} in {joint.state} ({_fault_text(code)})'))
+            if joint.fault is not None:
+                conditions.append((('sensor', name), name, safety.KIND_SENSOR_FAULT,
+                                   joint.fault.value, joint.fault.limit,
+                                   f'{joint.sensor.label}: {joint.fault.text}'))
+        bus_checks: tuple[tuple[str, str | None], ...] = (
+            ('bus state', self._state_fault), ('send', self._send_fault()),
+            ('error frame', self._error_frame_fault(now)),
+            ('receive', self._receive_fault_now(now)))
+        for key, text in bus_checks:
             if text is not None:
-                self._latch(bus_key, '', safety.KIND_BUS_OFF, _NAN, _NAN, text)
-            else:
-                self._active.discard(bus_key)
+                conditions.append(((key,), '', safety.KIND_BUS_OFF, _NAN, _NAN, text))
+        return conditions
 
     def _heartbeat_fault(self, slave: _Slave, now: float) -> str | None:
+        if slave.rebooted:
+            return ('booted (boot-up message) while running: its configuration is lost, '
+                    'restart the driver')
         if slave.heartbeat_state != cd.NMT_OPERATIONAL:
             return f'reports NMT state {_nmt_name(slave.heartbeat_state)}, not operational'
         if slave.heartbeat_time is None or now - slave.heartbeat_time > \
@@ -794,63 +1007,75 @@ class Master:
             return self._frame_fault
         return None
 
-    def _holding(self, now: float) -> list[tuple[str, int, float, float, str]]:
-        """List the fault conditions that forbid a reset now.
-
-        Each as (joint, kind, value, limit, text). A slave found pre-operational or stopped
-        (it rebooted: its defaults are the specified configuration) is sent NMT start, so that
-        a later reset can succeed.
-        """
-        holding = []
-        for slave in self._slaves:
-            lost = self._heartbeat_fault(slave, now)
-            if lost is not None:
-                age = now - slave.heartbeat_time if slave.heartbeat_time is not None else _NAN
-                holding.append((slave.joint, safety.KIND_HEARTBEAT_LOST, age,
-                                self.config.heartbeat_timeout, f'{slave.label}: {lost}'))
-                if slave.heartbeat_state in (cd.NMT_PRE_OPERATIONAL, cd.NMT_STOPPED):
-                    self._send_nmt(cd.NMT_START, slave.node)
-            elif slave.missing >= self.config.missing_syncs:
-                holding.append((slave.joint, safety.KIND_BUS_OFF, _NAN, _NAN,
-                                f'{slave.label}: no TPDO for {slave.missing} SYNC periods'))
-        for joint in self._joints:
-            if joint.fault is not None:
-                holding.append((joint.config.name, safety.KIND_SENSOR_FAULT, joint.fault.value,
-                                joint.fault.limit,
-                                f'{joint.sensor.label}: {joint.fault.text}'))
-        for text in (self._state_fault, self._send_fault(), self._error_frame_fault(now)):
-            if text is not None:
-                holding.append(('', safety.KIND_BUS_OFF, _NAN, _NAN, text))
-        return holding
+    def _receive_fault_now(self, now: float) -> str | None:
+        if self._receive_fault is not None \
+                and now - self._receive_fault_time <= ERROR_FRAME_HOLD:
+            return self._receive_fault
+        return None
 
     def _reset(self, now: float) -> None:
+        """First phase of a reset: refuse it, or send the drives in fault a reset edge."""
         if not self._latched:
             self._events.append(Event('', safety.KIND_RESET, safety.SEVERITY_INFO, _NAN, _NAN,
                                       False, 'reset: no stop was latched'))
             return
-        holding = self._holding(now)
-        if holding:
-            name, kind, value, limit, _ = holding[0]
-            texts = '; '.join(text for *_, text in holding)
-            self._events.append(Event(name, kind, safety.SEVERITY_WARN, value, limit, True,
+        if self._reset_until is not None:
+            return  # the reset asked for before is under way
+        if self._refuse_reset(self._conditions(now)):
+            return
+        # Drives in fault get their reset edge while the stop still holds; the latch is
+        # released only once every one of them has left fault (_finish_reset).
+        armed = [joint for joint in self._joints if cia402.is_fault(joint.state)]
+        for joint in armed:
+            self._arm_fault_reset(joint, now)
+        self._reset_until = max((joint.fault_reset_until for joint in armed), default=now)
+        self._finish_reset(now)
+
+    def _finish_reset(self, now: float) -> None:
+        """Second phase of a reset: release once no drive is in fault, refuse at the time."""
+        if self._refuse_reset(self._conditions(now)):
+            self._reset_until = None
+            return
+        in_fault = [joint for joint in self._joints if cia402.is_fault(joint.state)]
+        if in_fault:
+            if self._reset_until is not None and now <= self._reset_until:
+                return
+            self._reset_until = None
+            joint = in_fault[0]
+            code = joint.emcy_code
+            texts = '; '.join(f'{j.drive.label} still in {j.state} after its fault reset '
+                              f'({_fault_text(j.emcy_code)})' for j in in_fault)
+            self._events.append(Event(joint.config.name, safety.KIND_DRIVE_FAULT,
+                                      safety.SEVERITY_WARN,
+                                      float(code) if code is not None else _NAN, _NAN, True,
                                       f'reset refused: {texts}'))
             return
+        self._reset_until = None
         cause = self._cause
         self._latched = False
         self._cause = None
         self._active.clear()
-        for index, joint in enumerate(self._joints):
+        for index in range(len(self._joints)):
             self._commands[index] = (0.0, True, now)
-            self._arm_fault_reset(joint, now)
         because = f' (latched by {cause.text})' if cause is not None else ''
         self._events.append(Event('', safety.KIND_RESET, safety.SEVERITY_INFO, _NAN, _NAN,
                                   False, f'reset: stop released{because}'))
+
+    def _refuse_reset(self, conditions: list[tuple[_Key, str, int, float, float, str]]) -> bool:
+        """WARN and return True if a condition other than a drive in fault holds."""
+        holding = [condition for condition in conditions if condition[0][0] != 'drive']
+        if not holding:
+            return False
+        _, name, kind, value, limit, _ = holding[0]
+        texts = '; '.join(condition[5] for condition in holding)
+        self._events.append(Event(name, kind, safety.SEVERITY_WARN, value, limit, True,
+                                  f'reset refused: {texts}'))
+        return True
 
     def _arm_fault_reset(self, joint: _Joint, now: float) -> None:
         """Allow one fault reset edge and give the drive time to leave fault."""
         joint.fault_reset = True
         joint.fault_reset_until = now + FAULT_RESET_TIME + 2 * self.config.period
-        joint.emcy_code = None
 
     def _latch(self, key: _Key, joint: str, kind: int,
                value: float, limit: float, text: str) -> None:
@@ -895,10 +1120,14 @@ class Master:
         state = message.data[0] & 0x7F
         slave.heartbeat_state = state
         slave.heartbeat_time = self._clock()
-        if state == cd.NMT_BOOT_UP and self._operational:
-            self._latch(('heartbeat', slave.node), slave.joint, safety.KIND_HEARTBEAT_LOST,
-                        0.0, self.config.heartbeat_timeout,
-                        f'{slave.label}: booted (boot-up message) while running')
+        if state == cd.NMT_BOOT_UP:
+            slave.booted = True
+            if self._operational:
+                slave.rebooted = True
+                self._latch(('heartbeat', slave.node), slave.joint, safety.KIND_HEARTBEAT_LOST,
+                            0.0, self.config.heartbeat_timeout,
+                            f'{slave.label}: booted (boot-up message) while running: its '
+                            f'configuration is lost, restart the driver')
 
     def _on_sdo(self, node: int, message: can.Message) -> None:
         self._sdo_answers[node] = bytes(message.data)
@@ -927,8 +1156,23 @@ class Master:
         if len(message.data) != cd.DRIVE_TPDO1.size:
             return
         status, joint.velocity, joint.current = cd.DRIVE_TPDO1.unpack(message.data)
-        joint.state = cia402.decode_state(status)
+        before = joint.state
+        state = joint.state = cia402.decode_state(status)
         joint.drive.seen = True
+        name = joint.config.name
+        if cia402.is_fault(before) and not cia402.is_fault(state):
+            joint.emcy_code = None  # the next fault's code is unknown until its EMCY
+        if state == cia402.UNKNOWN:
+            self._latch(('drive', name), name, safety.KIND_DRIVE_FAULT, _NAN, _NAN,
+                        f'{joint.drive.label}: statusword 0x{status:04X} matches no CiA 402 '
+                        f'state')
+        elif before == cia402.OPERATION_ENABLED and state != before \
+                and not cia402.is_fault(state) \
+                and joint.enabled_syncs > self.config.missing_syncs:
+            # Sent enable operation for longer than a TPDO may lag: the drive left by itself
+            # (a fault is reported with its code by the supervision).
+            self._latch(('drive', name), name, safety.KIND_DRIVE_FAULT, _NAN, _NAN,
+                        f'{joint.drive.label} left operation enabled for {state} by itself')
         self._received(joint, _DRIVE_TPDO)
 
     def _on_sensor_tpdo1(self, joint: _Joint, message: can.Message) -> None:
@@ -1006,11 +1250,12 @@ class Master:
         self._send(self._sync)
 
     def _index(self, joint: str) -> int:
-        for index, candidate in enumerate(self._joints):
-            if candidate.config.name == joint:
-                return index
-        msg = f'joint {joint!r} is not on this bus: the master serves {", ".join(self.joints)}'
-        raise HardwareConfigError(msg)
+        index = self._indices.get(joint)
+        if index is None:
+            msg = (f'joint {joint!r} is not on this bus: the master serves '
+                   f'{", ".join(self.joints)}')
+            raise HardwareConfigError(msg)
+        return index
 
 
 def _drain(queue: collections.deque[_T]) -> list[_T]:
@@ -1020,6 +1265,12 @@ def _drain(queue: collections.deque[_T]) -> list[_T]:
             items.append(queue.popleft())
         except IndexError:
             return items
+
+
+def _fault_text(code: int | None) -> str:
+    if code is None:
+        return 'no EMCY received since it entered fault'
+    return f'error code 0x{code:04X} {cd.ERROR_CODES.get(code, "unknown error")}'
 
 
 def _nmt_name(state: int | None) -> str:
