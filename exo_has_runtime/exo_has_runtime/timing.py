@@ -47,13 +47,16 @@ class PeriodMonitor:
     def tick(self, now_ns: int) -> None:
         """Count a tick that ran at ``now_ns`` (the loop's clock) [ns].
 
-        The first tick sets the release grid; a clock that jumps back (a restarted
-        simulation) starts a new grid.
+        The first tick sets the release grid; a tick earlier than its release moves the grid
+        back to it, since a timer never runs early: the first tick may have been late, and the
+        grid would hide that much of every later tick's lateness. A clock that jumps back by
+        more than a period (a restarted simulation) starts a new grid.
         """
         release = self._release_ns
         if release is None or now_ns < release - self.period_ns:
             self._release_ns = now_ns + self.period_ns
             return
+        release = min(release, now_ns)
         lateness = max(0, now_ns - release)
         skipped = lateness // self.period_ns
         self.ticks += 1
