@@ -45,9 +45,9 @@ def run(config: SessionConfig, folder: Path) -> Path:
     finally:
         codes = session.stop()
     failed = {name: code for name, code in codes.items() if code != 0}
-    notes = []
+    notes = [f'Joints: {joints}.', '']
     if failed:
-        notes = [f'Nodes that did not exit cleanly: {failed} (logs in `{session.logs}`).', '']
+        notes += [f'Nodes that did not exit cleanly: {failed} (logs in `{session.logs}`).', '']
         print(f'exo-has demo: nodes that did not exit cleanly: {failed}', flush=True)
     assert session.bag is not None
     data = read_session(session.bag)
