@@ -13,7 +13,11 @@ with no tick, what rclcpp's timers count as skipped), with the ticks late by ove
 and the lateness percentiles of the worst plant. An idle node ticking at the same rate next to
 the session (bench/probe.py) gives the machine's own floor at that moment.
 
-Run: ``.venv/bin/python bench/system.py [--duration 30] [--rates 200 1000]``.
+With ``--realtime-priorities 0 10`` the sessions take turns with the plants' loops under the
+default scheduler and under SCHED_FIFO at priority 10 (root only; see exo_has_runtime.realtime).
+
+Run: ``.venv/bin/python bench/system.py [--duration 30] [--rates 200 1000] [--repeats 3]
+[--realtime-priorities 0 10]``.
 """
 
 from __future__ import annotations
@@ -116,9 +120,9 @@ def timing(output: str) -> dict[str, float]:
     return {key: float(value) for key, value in zip(keys, match.groups(), strict=True)}
 
 
-def run(rate: float, duration: float, folder: Path) -> dict[str, object]:
-    """One session at a rate; return its figures."""
-    config = SessionConfig(('walk',), (duration,), rate)
+def run(rate: float, duration: float, folder: Path, priority: int = 0) -> dict[str, object]:
+    """One session at a rate, the plants at a real-time priority (0: none); its figures."""
+    config = SessionConfig(('walk',), (duration,), rate, realtime_priority=priority)
     session = Session(config, folder)
     session.start(show=lambda line: None)
     assert session.started_at is not None
@@ -149,7 +153,7 @@ def run(rate: float, duration: float, folder: Path) -> dict[str, object]:
     fatal = sum(1 for e in read_session(session.bag).events if e.severity >= 3)
     return {
         'fatal_events': fatal,
-        'rate_hz': rate, 'duration_s': duration,
+        'rate_hz': rate, 'duration_s': duration, 'realtime_priority': priority,
         'cpu_percent_of_one_core': {k: round(v, 1) for k, v in shares.items()},
         'cpu_percent_total': round(sum(shares.values()), 1),
         'plant_periods': periods, 'plant_missed_periods': missed,
@@ -172,37 +176,46 @@ def main() -> None:
     parser.add_argument('--rates', type=float, nargs='+', default=[200.0, 1000.0])
     parser.add_argument('--repeats', type=int, default=1,
                         help='sessions per rate, the rates taking turns; medians are reported')
+    parser.add_argument('--realtime-priorities', type=int, nargs='+', default=[0],
+                        help="SCHED_FIFO priorities of the plants' loops to compare, taking "
+                             'turns (0: the default scheduler; others need root)')
     args = parser.parse_args()
     results = []
     with tempfile.TemporaryDirectory() as scratch:
         for repeat in range(args.repeats):
             for rate in args.rates:
-                folder = Path(scratch) / f'rate_{rate:g}_{repeat}'
-                results.append(run(rate, args.duration, folder))
-                print(json.dumps(results[-1], indent=1), flush=True)
+                for priority in args.realtime_priorities:
+                    folder = Path(scratch) / f'rate_{rate:g}_{priority}_{repeat}'
+                    results.append(run(rate, args.duration, folder, priority))
+                    print(json.dumps(results[-1], indent=1), flush=True)
     medians = {}
     for rate in args.rates:
-        runs = [r for r in results if r['rate_hz'] == rate]
-        medians[f'{rate:g}'] = {
-            key: float(np.median([r[key] for r in runs]))
-            for key in ('cpu_percent_total', 'missed_percent', 'late_percent')}
-        medians[f'{rate:g}']['probe_missed_percent'] = float(
-            np.median([r['probe']['missed_percent'] for r in runs]))
+        for priority in args.realtime_priorities:
+            runs = [r for r in results
+                    if r['rate_hz'] == rate and r['realtime_priority'] == priority]
+            key = f'{rate:g} Hz, realtime priority {priority}'
+            medians[key] = {
+                name: float(np.median([r[name] for r in runs]))
+                for name in ('cpu_percent_total', 'missed_percent', 'late_percent')}
+            medians[key]['probe_missed_percent'] = float(
+                np.median([r['probe']['missed_percent'] for r in runs]))
     machine = {'cpus': os.cpu_count(), 'machine': platform.machine(),
                'python': platform.python_version(), 'kernel': platform.release()}
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / 'system.json').write_text(json.dumps(
         {'machine': machine, 'medians': medians, 'runs': results}, indent=1) + '\n')
-    lines = [f'bench/system.py --duration {args.duration:g} --repeats {args.repeats}: {machine}']
-    for rate, median in medians.items():
-        lines.append(f'{rate} Hz, median of {args.repeats}: total CPU '
+    lines = [f'bench/system.py --duration {args.duration:g} --repeats {args.repeats} '
+             f'--realtime-priorities {" ".join(map(str, args.realtime_priorities))}: {machine}']
+    for key, median in medians.items():
+        lines.append(f'{key}, median of {args.repeats}: total CPU '
                      f"{median['cpu_percent_total']:.1f} % of one core, missed "
                      f"{median['missed_percent']:.3f} %, late {median['late_percent']:.3f} %, "
                      f"idle probe missed {median['probe_missed_percent']:.3f} %")
     for r in results:
         ref, cmd = r['latency_ms']['reference_to_state'], r['latency_ms']['command_to_state']
         lines.append(
-            f"{r['rate_hz']:g} Hz: total CPU {r['cpu_percent_total']} % of one core; plants "
+            f"{r['rate_hz']:g} Hz, realtime priority {r['realtime_priority']}: total CPU "
+            f"{r['cpu_percent_total']} % of one core; plants "
             f"missed {r['plant_missed_periods']}/{r['plant_periods']} ({r['missed_percent']} %), "
             f"late by over half a period {r['plant_late_periods']} ({r['late_percent']} %), "
             f"lateness of the worst plant {r['plant_lateness_ms']}; idle probe missed "

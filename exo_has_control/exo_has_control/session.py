@@ -97,6 +97,9 @@ class SessionConfig:
     can_channel : str
         Multicast group of the simulated CAN bus; empty: a random one per session, so that
         sessions on one machine do not share a bus.
+    realtime_priority : int
+        SCHED_FIFO priority of the plants' loops, or of the driver's I/O thread (0: the
+        default scheduler; see exo_has_runtime.realtime).
 
     """
 
@@ -111,6 +114,7 @@ class SessionConfig:
     load_mass: dict[str, float] = field(default_factory=lambda: {'hip': 50.0, 'knee': 25.0})
     hardware: str = 'plants'
     can_channel: str = ''
+    realtime_priority: int = 0
 
     def __post_init__(self) -> None:
         if self.hardware not in HARDWARE:
@@ -139,13 +143,15 @@ def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
             '--load-mass-knee', f'{config.load_mass["knee"]}'), ready=r'can devices ready'))
         specs.append(NodeSpec('driver', 'exo_has_driver.driver_node', (
             '--ros-args', '-p', 'interface:=udp_multicast', '-p', f'channel:={channel}',
-            '-p', f'rate:={config.rate}'), ready=r'driver ready', stage=2))
+            '-p', f'rate:={config.rate}', '-p', f'realtime_priority:={config.realtime_priority}'),
+            ready=r'driver ready', stage=2))
     else:
         for joint in JOINT_NAMES:
             specs.append(NodeSpec(f'{joint}_plant', 'exo_has_sim.plant_node', (
                 '--ros-args', '-r', f'__node:={joint}_plant', '-p', f'joint:={joint}',
                 '-p', f'rate:={config.rate}',
                 '-p', f'load_mass:={config.load_mass[joint_type_of(joint)]}',
+                '-p', f'realtime_priority:={config.realtime_priority}',
                 *config.plant_arguments.get(joint, ())),
                 ready=r'plant ready'))
     specs.append(NodeSpec('pd_controller', 'exo_has_control.pd_controller', (),

@@ -71,6 +71,7 @@ from exo_has_runtime import (
     try_shutdown,
 )
 from exo_has_runtime.profiles import SAFETY_EVENT_QOS
+from exo_has_runtime.realtime import MAX_PRIORITY, set_realtime_priority
 from exo_has_runtime.topics import (
     JOINT_NAMES,
     SAFETY_EVENT_TOPIC,
@@ -194,6 +195,10 @@ class Driver(Node):
         missing_syncs = declare('missing_syncs', DEFAULT_MISSING_SYNCS, read_only(
             'SYNC periods without a TPDO from a slave that are a bus fault',
             integer_range=_integers(1, 1000))).value
+        priority = declare('realtime_priority', 0, read_only(
+            'SCHED_FIFO priority of the I/O thread that sends the SYNC (0: the default '
+            'scheduler; needs root or CAP_SYS_NICE, see exo_has_runtime.realtime)',
+            integer_range=_integers(0, MAX_PRIORITY))).value
         acceleration = declare('acceleration', DEFAULT_ACCELERATION, read_only(
             'profile acceleration and deceleration of the pump [rad/s^2]',
             floating_point_range=_floats(1.0, 1e6))).value
@@ -241,6 +246,9 @@ class Driver(Node):
         except BaseException:
             self._close_bus()
             raise
+        problem = set_realtime_priority(priority, self._master.io_thread_id or 0)
+        if problem:
+            self.get_logger().warning(f'realtime_priority: {problem}')
         for joint in self._joints:
             self.create_subscription(HasCommand, has_command_topic(joint),
                                      partial(self._on_command, joint), qos_profile_sensor_data)

@@ -16,6 +16,7 @@ from exo_has_runtime import (
     STARTUP_ERRORS,
     ExternalShutdownException,
     FloatingPointRange,
+    IntegerRange,
     Node,
     ParameterDescriptor,
     get_logger,
@@ -25,6 +26,7 @@ from exo_has_runtime import (
     spin_paced,
     try_shutdown,
 )
+from exo_has_runtime.realtime import MAX_PRIORITY, set_realtime_priority
 from exo_has_runtime.timing import PeriodMonitor
 from exo_has_runtime.topics import (
     JOINT_NAMES,
@@ -63,6 +65,11 @@ class PlantNode(Node):
         initial_angle = self.declare_parameter('initial_angle', 0.0, ParameterDescriptor(
             description='joint angle at start [rad], flexion positive (0: standing)',
             read_only=True)).value
+        priority = self.declare_parameter('realtime_priority', 0, ParameterDescriptor(
+            description='SCHED_FIFO priority of the thread that runs the ticks (0: the default '
+                        'scheduler; needs root or CAP_SYS_NICE, see exo_has_runtime.realtime)',
+            read_only=True,
+            integer_range=[IntegerRange(from_value=0, to_value=MAX_PRIORITY, step=1)])).value
         params = load_parameters(params_source)
         mass = self.declare_parameter('load_mass', PAPER_LOAD_MASS, ParameterDescriptor(
             description='carried mass [kg] the default load_force is derived for (the paper: '
@@ -86,6 +93,10 @@ class PlantNode(Node):
         self._last_ns: int | None = None
         self._timing = PeriodMonitor(round(self._period * 1e9))
         self.create_timer(self._period, self._on_tick)
+        # This thread spins the node; the DDS threads, created earlier, stay ordinary.
+        problem = set_realtime_priority(priority)
+        if problem:
+            self.get_logger().warning(f'realtime_priority: {problem}')
         self.get_logger().info(
             f'{self.joint} plant ready ({self._plant.params.joint_type} parameters from '
             f'{params_source}), {rate:g} Hz, load {load:.1f} N')

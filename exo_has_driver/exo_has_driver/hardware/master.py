@@ -522,6 +522,11 @@ class Master:
         return self._cause
 
     @property
+    def io_thread_id(self) -> int | None:
+        """Native ID of the I/O thread (for its scheduling class), None before the start."""
+        return None if self._thread is None else self._thread.native_id
+
+    @property
     def running(self) -> bool:
         """Whether the I/O thread runs the SYNC cycle."""
         return self._thread is not None and self._thread.is_alive()
