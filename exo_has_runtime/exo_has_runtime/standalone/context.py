@@ -329,7 +329,7 @@ class Context:
         with self._lock:
             self.participant  # noqa: B018
             for reader in self._graph_readers:
-                for sample in reader.take(N=256):
+                for sample in _take_holding_sigint(reader):
                     key = bytes(sample.key.bytes)
                     if sample.sample_info.instance_state != InstanceState.Alive:
                         self._graph.pop(key, None)
@@ -371,3 +371,26 @@ _default_context = Context()
 def get_default_context() -> Context:
     """Return the process-wide context."""
     return _default_context
+
+
+def _take_holding_sigint(reader: Any) -> list[Any]:
+    """Take up to 256 discovery samples, with a SIGINT held until the take is over.
+
+    The DDS binding builds each builtin sample in a Python callback from C: a KeyboardInterrupt
+    raised there comes out as a bare ``Exception`` ("Callfunc endpoint constructor errored")
+    and the node would end with a traceback instead of stopping cleanly. Outside the main
+    thread (where Python runs no signal handler) the take is left as it is.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return list(reader.take(N=256))
+    caught: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    try:
+        return list(reader.take(N=256))
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        if caught:
+            if callable(previous):
+                previous(caught[0], None)
+            elif previous == signal.SIG_DFL:
+                raise KeyboardInterrupt
