@@ -16,10 +16,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import random
 import tempfile
-import time
 from pathlib import Path
 from typing import Any
 
@@ -29,35 +27,22 @@ os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(100, 20
 os.environ.pop('CYCLONEDDS_URI', None)
 os.environ['EXO_HAS_BACKEND'] = 'standalone'
 
+from common import describe_machine, trial_cpu_shares
+
 from exo_has_control.analysis import read_session, tracking
 from exo_has_control.report import segments_of
 from exo_has_control.session import Session, SessionConfig
 
 RESULTS = Path(__file__).resolve().parent / 'results'
-TICK = os.sysconf('SC_CLK_TCK')
 MOTIONS, DURATIONS = ('walk', 'squat'), (10.0, 8.0)
-
-
-def cpu_seconds(pid: int) -> float:
-    """User plus system CPU time of a process [s]."""
-    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / TICK
 
 
 def run(hardware: str, folder: Path) -> dict[str, Any]:
     """One session; return its tracking rows, CPU share and FATAL events."""
     session = Session(SessionConfig(MOTIONS, DURATIONS, hardware=hardware), folder)
     session.start(show=lambda line: None)
-    total = sum(DURATIONS)
     try:
-        assert session.started_at is not None
-        time.sleep(max(0.0, session.started_at - time.monotonic()) + 0.2 * total)
-        before = {name: cpu_seconds(p.process.pid) for name, p in session.processes.items()}
-        t0 = time.monotonic()
-        time.sleep(0.6 * total)
-        span = time.monotonic() - t0
-        after = {name: cpu_seconds(p.process.pid) for name, p in session.processes.items()}
-        time.sleep(max(0.0, session.started_at + total + 0.5 - time.monotonic()))
+        shares = trial_cpu_shares(session, sum(DURATIONS))
     finally:
         session.stop()
     assert session.bag is not None
@@ -67,8 +52,7 @@ def run(hardware: str, folder: Path) -> dict[str, Any]:
         'hardware': hardware,
         'tracking_deg': {f'{r.joint} {r.segment}': {'rms': r.rms, 'min': r.minimum,
                                                      'max': r.maximum} for r in rows},
-        'cpu_percent': {name: round(100.0 * (after[name] - before[name]) / span, 1)
-                        for name in before},
+        'cpu_percent': {name: round(share, 1) for name, share in shares.items()},
         'fatal_events': sum(1 for e in data.events if e.severity >= 3),
     }
 
@@ -84,8 +68,7 @@ def main() -> None:
             for hardware in ('plants', 'can'):
                 runs.append(run(hardware, Path(scratch) / f'{hardware}_{repeat}'))
                 print(json.dumps(runs[-1]), flush=True)
-    machine = {'cpus': os.cpu_count(), 'machine': platform.machine(),
-               'python': platform.python_version(), 'kernel': platform.release()}
+    machine = describe_machine()
     medians: dict[str, dict[str, dict[str, float]]] = {}
     for hardware in ('plants', 'can'):
         mine = [r for r in runs if r['hardware'] == hardware]

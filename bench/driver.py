@@ -48,7 +48,6 @@ import bisect
 import json
 import math
 import os
-import platform
 import random
 import re
 import subprocess
@@ -66,6 +65,7 @@ os.environ.pop('CYCLONEDDS_URI', None)
 os.environ['EXO_HAS_BACKEND'] = 'standalone'
 
 import can
+from common import TICK, cpu_seconds, describe_machine
 
 from exo_has_driver import can_dictionary as cd
 from exo_has_driver.hardware.bus import open_bus
@@ -78,7 +78,6 @@ from exo_has_runtime.topics import has_command_topic
 HasCommand = get_message('exo_has_msgs/msg/HasCommand')
 
 RESULTS = Path(__file__).resolve().parent / 'results'
-TICK = os.sysconf('SC_CLK_TCK')
 DRIVER = 'exo_has_driver.driver_node'
 DEVICES = 'exo_has_driver.devices.main'
 JOINTS = tuple(cd.DRIVE_NODE_IDS)
@@ -101,12 +100,6 @@ MATCH_TIMEOUT = 10.0
 #: Local port of every python-can udp_multicast socket (python-can's default).
 CAN_PORT = 43113
 NOTICE = re.compile(r'^(\[(WARN|ERROR|FATAL)\].*|.*\b(WARNING|ERROR|Traceback)\b.*)$', re.M)
-
-
-def cpu_seconds(pid: int) -> float:
-    """User plus system CPU time of a process [s]."""
-    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / TICK
 
 
 def machine_busy_seconds() -> float:
@@ -542,9 +535,8 @@ def main() -> None:
     finally:
         try_shutdown()
     medians = {key: _median(results, *path) for key, path in MEDIANS.items()}
-    machine = {**source_version(), 'cpus': os.cpu_count(), 'machine': platform.machine(),
-               'python': platform.python_version(), 'kernel': platform.release(),
-               'python_can': can.__version__, 'loadavg_before': ' '.join(load),
+    machine = {**source_version(), **describe_machine(), 'python_can': can.__version__,
+               'loadavg_before': ' '.join(load),
                'loadavg_after': ' '.join(Path('/proc/loadavg').read_text().split()[:3])}
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / 'driver.json').write_text(json.dumps(

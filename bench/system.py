@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import random
 import re
 import subprocess
@@ -40,20 +39,13 @@ os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(100, 20
 os.environ.pop('CYCLONEDDS_URI', None)
 os.environ['EXO_HAS_BACKEND'] = 'standalone'
 
+from common import describe_machine, trial_cpu_shares
+
 from exo_has_control.analysis import read_session
 from exo_has_control.session import Session, SessionConfig
 from exo_has_runtime.topics import JOINT_NAMES
 
 RESULTS = Path(__file__).resolve().parent / 'results'
-TICK = os.sysconf('SC_CLK_TCK')
-
-
-def cpu_seconds(pid: int) -> float:
-    """User plus system CPU time of a process [s]."""
-    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / TICK
-
-
 def latencies(bag: Path) -> tuple[np.ndarray, np.ndarray, int]:
     """Latencies of the commands the plants applied, and how many were never applied.
 
@@ -131,18 +123,10 @@ def run(rate: float, duration: float, folder: Path, priority: int = 0) -> dict[s
          '--duration', f'{session.started_at - time.monotonic() + duration:.2f}'],
         stdout=subprocess.PIPE, text=True)
     try:
-        assert session.started_at is not None
-        time.sleep(max(0.0, session.started_at - time.monotonic()) + duration * 0.2)
-        before = {name: cpu_seconds(p.process.pid) for name, p in session.processes.items()}
-        t0 = time.monotonic()
-        time.sleep(duration * 0.6)
-        span = time.monotonic() - t0
-        after = {name: cpu_seconds(p.process.pid) for name, p in session.processes.items()}
-        time.sleep(max(0.0, session.started_at + duration + 0.5 - time.monotonic()))
+        shares = trial_cpu_shares(session, duration)
     finally:
         session.stop()
         probe_output = probe.communicate(timeout=60.0)[0]
-    shares = {name: 100.0 * (after[name] - before[name]) / span for name in before}
     plants = [timing(session.output(f'{joint}_plant')) for joint in JOINT_NAMES]
     periods = int(sum(p['periods'] for p in plants))
     missed = int(sum(p['missed'] for p in plants))
@@ -199,8 +183,7 @@ def main() -> None:
                 for name in ('cpu_percent_total', 'missed_percent', 'late_percent')}
             medians[key]['probe_missed_percent'] = float(
                 np.median([r['probe']['missed_percent'] for r in runs]))
-    machine = {'cpus': os.cpu_count(), 'machine': platform.machine(),
-               'python': platform.python_version(), 'kernel': platform.release()}
+    machine = describe_machine()
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / 'system.json').write_text(json.dumps(
         {'machine': machine, 'medians': medians, 'runs': results}, indent=1) + '\n')

@@ -1,0 +1,43 @@
+"""What the benchmarks share: CPU time from /proc, the machine, a session's CPU shares."""
+
+from __future__ import annotations
+
+import os
+import platform
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # the scripts choose the backend before they import the session
+    from exo_has_control.session import Session
+
+TICK = os.sysconf('SC_CLK_TCK')
+
+
+def cpu_seconds(pid: int) -> float:
+    """User plus system CPU time of a process [s]."""
+    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / TICK
+
+
+def describe_machine() -> dict[str, object]:
+    """Describe the machine the figures come from."""
+    return {'cpus': os.cpu_count(), 'machine': platform.machine(),
+            'python': platform.python_version(), 'kernel': platform.release()}
+
+
+def trial_cpu_shares(session: Session, duration: float) -> dict[str, float]:
+    """Wait out a started session's trials; each process's CPU share over their middle 60 %.
+
+    Returns when the trials of ``duration`` seconds are over (and half a second more); the
+    shares are in percent of one core, by process name.
+    """
+    assert session.started_at is not None
+    time.sleep(max(0.0, session.started_at - time.monotonic()) + duration * 0.2)
+    before = {name: cpu_seconds(p.process.pid) for name, p in session.processes.items()}
+    t0 = time.monotonic()
+    time.sleep(duration * 0.6)
+    span = time.monotonic() - t0
+    after = {name: cpu_seconds(p.process.pid) for name, p in session.processes.items()}
+    time.sleep(max(0.0, session.started_at + duration + 0.5 - time.monotonic()))
+    return {name: 100.0 * (after[name] - before[name]) / span for name in before}
