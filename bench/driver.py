@@ -68,7 +68,7 @@ import can
 from common import TICK, cpu_seconds, describe_machine
 
 from exo_has_driver import can_dictionary as cd
-from exo_has_driver.hardware.bus import open_bus
+from exo_has_driver.hardware.bus import open_bus, random_multicast_group
 from exo_has_driver.hardware.units import DriveUnits
 from exo_has_runtime import Node, get_message, init, qos_profile_sensor_data, try_shutdown
 from exo_has_runtime.testing.processes import NodeProcess
@@ -385,8 +385,7 @@ def run(duration: float, index: int, scratch: Path) -> dict[str, object]:
         If a process does not start or the topics do not match; its output is quoted.
 
     """
-    rng = random.SystemRandom()
-    group = f'239.74.{rng.randint(1, 254)}.{rng.randint(1, 254)}'
+    group = random_multicast_group()
     units = DriveUnits()
     commands = Commands(units)
     t_launch = time.monotonic()

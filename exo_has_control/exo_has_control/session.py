@@ -11,12 +11,12 @@ integration tests run sessions.
 
 from __future__ import annotations
 
-import random
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from exo_has_driver.hardware.bus import random_multicast_group
 from exo_has_runtime.testing.processes import NodeProcess
 from exo_has_runtime.topics import (
     DIAGNOSTICS_TOPIC,
@@ -36,10 +36,6 @@ READY_TIMEOUT = 120.0
 HARDWARE = ('plants', 'can')
 
 
-def random_can_group() -> str:
-    """Draw a multicast group for one session's simulated CAN bus, in 239.74.0.0/16."""
-    draw = random.SystemRandom()
-    return f'239.74.{draw.randint(0, 255)}.{draw.randint(1, 254)}'
 
 
 def recorded_topics(with_loads: bool = False) -> list[str]:
@@ -61,6 +57,7 @@ class NodeSpec:
     arguments: tuple[str, ...] = ()
     ready: str = r'ready'  # a line of its output that says it is up
     stage: int = 1  # nodes start by stage, each once the earlier stages are up
+    stdin: bool = False  # a pipe to its standard input (the simulated devices' fault injection)
 
 
 @dataclass(frozen=True)
@@ -136,11 +133,12 @@ def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
             '--ros-args', '-p', f'output:={bag}', '-p', f'topics:=[{topics}]'),
             ready=r'recording', stage=0))
     if config.hardware == 'can':
-        channel = config.can_channel or random_can_group()
+        channel = config.can_channel or random_multicast_group()
         specs.append(NodeSpec('can_devices', 'exo_has_driver.devices.main', (
             '--interface', 'udp_multicast', '--channel', channel,
             '--load-mass-hip', f'{config.load_mass["hip"]}',
-            '--load-mass-knee', f'{config.load_mass["knee"]}'), ready=r'can devices ready'))
+            '--load-mass-knee', f'{config.load_mass["knee"]}'), ready=r'can devices ready',
+            stdin=True))
         specs.append(NodeSpec('driver', 'exo_has_driver.driver_node', (
             '--ros-args', '-p', 'interface:=udp_multicast', '-p', f'channel:={channel}',
             '-p', f'rate:={config.rate}', '-p', f'realtime_priority:={config.realtime_priority}'),
@@ -211,11 +209,9 @@ class Session:
             for stage in sorted({spec.stage for spec in specs}):
                 group = [spec for spec in specs if spec.stage == stage]
                 for spec in group:
-                    # The simulated devices take fault injections on their standard input.
                     self.processes[spec.name] = NodeProcess(
                         spec.module, spec.arguments, env=self.env,
-                        log_path=self.logs / f'{spec.name}.log',
-                        stdin=spec.name == 'can_devices')
+                        log_path=self.logs / f'{spec.name}.log', stdin=spec.stdin)
                     show(f'started {spec.name} (pid {self.processes[spec.name].process.pid})')
                 for spec in group if stage > 0 else ():
                     self.processes[spec.name].wait_for_output(spec.ready, READY_TIMEOUT)

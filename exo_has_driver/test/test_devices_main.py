@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 import queue
-import random
 import signal
 import struct
 import subprocess
@@ -21,7 +20,7 @@ from exo_has_driver import can_dictionary as cd
 from exo_has_driver.devices import Rig
 from exo_has_driver.devices.main import execute, main
 from exo_has_driver.errors import FaultInjectionError
-from exo_has_driver.hardware.bus import isolate_multicast
+from exo_has_driver.hardware.bus import isolate_multicast, random_multicast_group
 
 TIMEOUT = 30.0  # s: a fresh interpreter imports numpy and the compiled model
 
@@ -123,7 +122,7 @@ def _frame(bus: can.BusABC, cob_id: int) -> bytes:
 
 
 def test_the_process_runs_the_devices_over_udp_multicast_and_takes_stdin_faults() -> None:
-    group = f'239.74.{random.randint(1, 254)}.{random.randint(1, 254)}'
+    group = random_multicast_group()
     bus = can.Bus(interface='udp_multicast', channel=group)
     assert isolate_multicast(bus)  # other tests on the machine use the same port
     process = subprocess.Popen(

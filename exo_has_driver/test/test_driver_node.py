@@ -1,7 +1,6 @@
 """The driver node in a process against the simulated devices' process on udp_multicast."""
 
 import math
-import random
 import re
 import subprocess
 import sys
@@ -12,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from exo_has_driver.driver_node import ResetGate, master_failure
+from exo_has_driver.hardware.bus import random_multicast_group
 from exo_has_runtime.profiles import SAFETY_EVENT_QOS
 from exo_has_runtime.standalone import (
     Node,
@@ -141,8 +141,7 @@ class Peers:
 
 @pytest.fixture
 def group():
-    rng = random.SystemRandom()
-    return f'239.74.{rng.randint(1, 254)}.{rng.randint(1, 254)}'
+    return random_multicast_group()
 
 
 def test_the_driver_moves_the_joints_stops_on_the_watchdog_and_on_a_drive_fault(ros_context,

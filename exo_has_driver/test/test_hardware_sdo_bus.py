@@ -1,4 +1,3 @@
-import random
 import struct
 import uuid
 
@@ -11,7 +10,12 @@ from exo_has_driver.errors import (
     CanOpenTimeoutError,
     HardwareConfigError,
 )
-from exo_has_driver.hardware.bus import bus_state_fault, error_frame_fault, open_bus
+from exo_has_driver.hardware.bus import (
+    bus_state_fault,
+    error_frame_fault,
+    open_bus,
+    random_multicast_group,
+)
 from exo_has_driver.hardware.sdo import SdoClient
 
 
@@ -132,9 +136,8 @@ def test_a_late_answer_for_another_object_is_skipped_and_the_wait_goes_on():
 
 
 def test_udp_multicast_buses_hear_their_own_group_only():
-    rng = random.SystemRandom()
-    group = f'239.74.{rng.randint(1, 254)}.{rng.randint(1, 254)}'
-    other = f'239.75.{rng.randint(1, 254)}.{rng.randint(1, 254)}'
+    group = random_multicast_group()
+    other = group.replace('239.74.', '239.75.', 1)  # a different group on the same port
     listener = open_bus('udp_multicast', group, 1_000_000)
     stranger = open_bus('udp_multicast', other, 1_000_000)
     neighbour = open_bus('udp_multicast', group, 1_000_000)

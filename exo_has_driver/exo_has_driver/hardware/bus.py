@@ -8,6 +8,7 @@ interface and channel. :func:`error_frame_fault` reads a SocketCAN error frame (
 
 from __future__ import annotations
 
+import random
 import socket
 
 import can
@@ -92,6 +93,16 @@ def isolate_multicast(bus: can.BusABC) -> bool:
     except OSError:
         return False
     return True
+
+
+def random_multicast_group() -> str:
+    """Draw a multicast group in 239.74.0.0/16 (site-local) for a udp_multicast bus of its own.
+
+    Tests, benchmarks and sessions on one machine each take one, so that their simulated
+    buses stay apart (with :func:`isolate_multicast`).
+    """
+    draw = random.SystemRandom()
+    return f'239.74.{draw.randint(0, 255)}.{draw.randint(1, 254)}'
 
 
 def error_frame_fault(message: can.Message) -> str | None:
