@@ -1,6 +1,7 @@
 """A node in a test process that watches a running session: events, commands, states.
 
-It publishes loads and resets too. Shared by the integration tests of sessions.
+It publishes loads and resets too. With :func:`observed_session` and :func:`read_so_far`,
+shared by the integration tests of sessions.
 """
 
 from __future__ import annotations
@@ -8,7 +9,13 @@ from __future__ import annotations
 import threading
 import time
 from collections import defaultdict
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
 
+from exo_has_control.analysis import SessionData, read_session
+from exo_has_control.session import Session, SessionConfig
+from exo_has_runtime.bag import recover_bag
 from exo_has_runtime.profiles import SAFETY_EVENT_QOS
 from exo_has_runtime.topics import (
     JOINT_NAMES,
@@ -99,3 +106,26 @@ class Observer:
         """Shut the observer's context down."""
         self.context.try_shutdown()
         self._thread.join(timeout=2.0)
+
+
+@contextmanager
+def observed_session(config: SessionConfig, folder: Path) -> Iterator[tuple[Session, Observer]]:
+    """Start a session and an observer, run the trials to their end, stop both on leaving."""
+    running = Session(config, folder)
+    running.start(show=lambda line: None)
+    observer = Observer()
+    try:
+        running.run(show=lambda line: None, extra=1.0)
+        yield running, observer
+    finally:
+        observer.close()
+        running.stop()
+
+
+def read_so_far(running: Session) -> SessionData:
+    """Read a running session's bag back while the session goes on standing."""
+    # The bag is written by chunks: read a copy closed by recovery while the recorder is on.
+    assert running.bag is not None
+    copy = Path(running.folder) / 'bag_so_far'
+    recover_bag(running.bag, copy)
+    return read_session(copy)

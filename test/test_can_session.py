@@ -11,15 +11,13 @@ from __future__ import annotations
 
 import re
 import time
-from pathlib import Path
 
 import pytest
-from session_observer import Observer
+from session_observer import Observer, observed_session, read_so_far
 
-from exo_has_control.analysis import read_session, tracking
+from exo_has_control.analysis import tracking
 from exo_has_control.report import segments_of
 from exo_has_control.session import Session, SessionConfig
-from exo_has_runtime.bag import recover_bag
 from exo_has_runtime.topics import JOINT_NAMES
 
 MOTIONS, DURATIONS = ('walk', 'squat'), (8.0, 8.0)
@@ -40,24 +38,14 @@ FATAL = 3
 @pytest.fixture(scope='module')
 def session(tmp_path_factory):
     config = SessionConfig(MOTIONS, DURATIONS, RATE, hardware='can')
-    folder = tmp_path_factory.mktemp('can_session')
-    running = Session(config, folder)
-    running.start(show=lambda line: None)
-    observer = Observer()
-    try:
-        running.run(show=lambda line: None, extra=1.0)
-        yield running, observer
-    finally:
-        observer.close()
-        running.stop()
+    with observed_session(config, tmp_path_factory.mktemp('can_session')) as pair:
+        yield pair
 
 
 @pytest.fixture(scope='module')
 def recorded(session):
     running, _observer = session
-    copy = Path(running.folder) / 'bag_so_far'
-    recover_bag(running.bag, copy)
-    return read_session(copy)
+    return read_so_far(running)
 
 
 def test_the_joints_track_through_the_driver_within_the_plant_loops_bounds_plus_a_degree(

@@ -11,11 +11,11 @@ import time
 from pathlib import Path
 
 import pytest
-from session_observer import Observer
+from session_observer import observed_session, read_so_far
 
-from exo_has_control.analysis import read_session, tracking
+from exo_has_control.analysis import tracking
 from exo_has_control.report import segments_of, write_report
-from exo_has_control.session import Session, SessionConfig, recorded_topics
+from exo_has_control.session import SessionConfig, recorded_topics
 from exo_has_runtime.bag import bag_topics, read_messages, recover_bag
 from exo_has_runtime.testing.processes import NodeProcess
 from exo_has_runtime.topics import JOINT_NAMES
@@ -34,26 +34,14 @@ STALE_BOUND = 0.5  # s: plant killed to the stale-state event (stale after 50 ms
 @pytest.fixture(scope='module')
 def session(tmp_path_factory):
     config = SessionConfig(MOTIONS, DURATIONS, RATE, loads=True)
-    folder = tmp_path_factory.mktemp('session')
-    running = Session(config, folder)
-    running.start(show=lambda line: None)
-    observer = Observer()
-    try:
-        running.run(show=lambda line: None, extra=1.0)
-        yield running, observer
-    finally:
-        observer.close()
-        running.stop()
+    with observed_session(config, tmp_path_factory.mktemp('session')) as pair:
+        yield pair
 
 
 @pytest.fixture(scope='module')
 def recorded(session):
-    """Read the session's bag back while the session goes on standing."""
     running, _observer = session
-    # The bag is written by chunks: read a copy closed by recovery if the recorder is still on.
-    copy = Path(running.folder) / 'bag_so_far'
-    recover_bag(running.bag, copy)
-    return read_session(copy)
+    return read_so_far(running)
 
 
 def test_the_hips_track_within_the_papers_squat_band_and_the_knees_within_their_bound(recorded):
