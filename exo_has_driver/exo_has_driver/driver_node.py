@@ -42,7 +42,7 @@ from functools import partial
 
 from exo_has_driver import can_dictionary as cd
 from exo_has_driver import safety
-from exo_has_driver.errors import HardwareConfigError
+from exo_has_driver.errors import HardwareConfigError, MasterStoppedError
 from exo_has_driver.hardware.bus import open_bus
 from exo_has_driver.hardware.master import (
     DEFAULT_ACCELERATION,
@@ -93,10 +93,6 @@ RESET_WAIT = 1.0
 #: The interpreter's thread switch interval [s]. Python's default 5 ms, a whole SYNC period,
 #: lets the executor thread hold the GIL long enough to delay the master's SYNC by a period.
 SWITCH_INTERVAL = 5e-4
-
-
-class MasterStoppedError(Exception):
-    """The master's I/O thread ended: the node cannot go on."""
 
 
 class ResetGate:

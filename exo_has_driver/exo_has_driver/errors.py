@@ -50,3 +50,7 @@ class CanOpenError(DriverError, OSError):
 
 class CanOpenTimeoutError(CanOpenError, TimeoutError):
     """A CANopen device did not answer in time (SDO response, boot-up, NMT state, enable)."""
+
+
+class MasterStoppedError(DriverError):
+    """The CANopen master's I/O thread ended while running: the driver cannot go on."""
