@@ -1,4 +1,4 @@
-"""Session-wide test set-up: every test run on a DDS domain of its own, loopback only."""
+"""Session-wide test set-up: every test run on a ROS domain of its own, this machine only."""
 
 from __future__ import annotations
 
@@ -9,16 +9,16 @@ from collections.abc import Iterator
 import pytest
 
 # Before any participant exists: child processes inherit both, so a test run never meets the
-# nodes of another run (or of a demo) on this machine.
+# nodes of another run (or of a demo) on this machine, nor anything on the network.
 os.environ['ROS_DOMAIN_ID'] = str(random.SystemRandom().randint(100, 200))
-os.environ.pop('CYCLONEDDS_URI', None)
-os.environ['EXO_HAS_BACKEND'] = 'standalone'
+os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+os.environ.pop('ROS_STATIC_PEERS', None)
 
 
 @pytest.fixture
 def ros_context() -> Iterator[object]:
-    """Give a fresh, initialised standalone context, shut down after the test."""
-    from exo_has_runtime.standalone import Context
+    """Give a fresh, initialised rclpy context, shut down after the test."""
+    from rclpy.context import Context
 
     context = Context()
     context.init(['test'])

@@ -24,8 +24,7 @@ from typing import Any
 import numpy as np
 
 os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(100, 200)))
-os.environ.pop('CYCLONEDDS_URI', None)
-os.environ['EXO_HAS_BACKEND'] = 'standalone'
+os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 
 from common import describe_machine, trial_cpu_shares
 

@@ -61,21 +61,21 @@ from pathlib import Path
 import numpy as np
 
 os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(100, 200)))
-os.environ.pop('CYCLONEDDS_URI', None)
-os.environ['EXO_HAS_BACKEND'] = 'standalone'
+os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 
 import can
+import rclpy
 from common import TICK, cpu_seconds, describe_machine
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
 
 from exo_has_driver import can_dictionary as cd
 from exo_has_driver.hardware.bus import open_bus, random_multicast_group
 from exo_has_driver.hardware.units import DriveUnits
-from exo_has_runtime import Node, get_message, init, qos_profile_sensor_data, try_shutdown
+from exo_has_msgs.msg import HasCommand
 from exo_has_runtime.testing.processes import NodeProcess
 from exo_has_runtime.timing import PeriodMonitor
 from exo_has_runtime.topics import has_command_topic
-
-HasCommand = get_message('exo_has_msgs/msg/HasCommand')
 
 RESULTS = Path(__file__).resolve().parent / 'results'
 DRIVER = 'exo_has_driver.driver_node'
@@ -518,7 +518,7 @@ def main() -> None:
     parser.add_argument('--repeats', type=int, default=3, help='runs; medians are reported')
     args = parser.parse_args()
     load = Path('/proc/loadavg').read_text().split()[:3]
-    init()
+    rclpy.init()
     results = []
     try:
         with tempfile.TemporaryDirectory() as folder:
@@ -532,7 +532,7 @@ def main() -> None:
                     raise
                 print(json.dumps(results[-1], indent=1), flush=True)
     finally:
-        try_shutdown()
+        rclpy.try_shutdown()
     medians = {key: _median(results, *path) for key, path in MEDIANS.items()}
     machine = {**source_version(), **describe_machine(), 'python_can': can.__version__,
                'loadavg_before': ' '.join(load),

@@ -4,17 +4,18 @@
 200 Hz node on this machine sees at that moment with no work of its own, the reference for the
 plants' figures. Prints :meth:`exo_has_runtime.timing.PeriodMonitor.summary` at the end.
 
-Run: ``.venv/bin/python bench/probe.py --rate 200 --duration 20``.
+Run (in ``./run shell``): ``python bench/probe.py --rate 200 --duration 20``.
 """
 
 from __future__ import annotations
 
 import argparse
-import os
+import threading
 
-os.environ['EXO_HAS_BACKEND'] = 'standalone'
+import rclpy
+from rclpy.node import Node
 
-from exo_has_runtime import Node, init, spin_paced, try_shutdown
+from exo_has_runtime.execution import spin
 from exo_has_runtime.timing import PeriodMonitor
 
 
@@ -24,27 +25,28 @@ def main() -> None:
     parser.add_argument('--rate', type=float, default=200.0, help='tick rate [Hz]')
     parser.add_argument('--duration', type=float, default=20.0, help='run time [s]')
     args = parser.parse_args()
-    init()
+    rclpy.init()
     node = Node('timing_probe')
+    done = threading.Event()
     period_ns = round(1e9 / args.rate)
     monitor = PeriodMonitor(period_ns)
     clock = node.get_clock()
-    end_ns = clock.now_ns() + round(args.duration * 1e9)
+    end_ns = clock.now().nanoseconds + round(args.duration * 1e9)
 
     def tick() -> None:
-        now = clock.now_ns()
+        now = clock.now().nanoseconds
         monitor.tick(now)
         if now >= end_ns:
-            raise KeyboardInterrupt
+            done.set()
 
     node.create_timer(period_ns * 1e-9, tick)
     try:
-        spin_paced(node)
+        spin(node, stop=done)  # on the executor the nodes use (EXO_HAS_EXECUTOR)
     except KeyboardInterrupt:
         pass
     finally:
         node.destroy_node()
-        try_shutdown()
+        rclpy.try_shutdown()
     print(f'probe: {monitor.summary()}', flush=True)
 
 

@@ -13,16 +13,19 @@ with no tick, what rclcpp's timers count as skipped), with the ticks late by ove
 and the lateness percentiles of the worst plant. An idle node ticking at the same rate next to
 the session (bench/probe.py) gives the machine's own floor at that moment.
 
-With ``--realtime-priorities 0 10`` the sessions take turns with the plants' loops under the
-default scheduler and under SCHED_FIFO at priority 10 (root only; see exo_has_runtime.realtime).
+With ``--executors events single`` the sessions take turns with every node on rclpy's
+EventsExecutor (what exo_has ships) and on its SingleThreadedExecutor (``EXO_HAS_EXECUTOR``);
+with ``--realtime-priorities 0 10``, with the plants' loops under the default scheduler and under
+SCHED_FIFO at priority 10 (root only; see exo_has_runtime.realtime).
 
-Run: ``.venv/bin/python bench/system.py [--duration 30] [--rates 200 1000] [--repeats 3]
-[--realtime-priorities 0 10]``.
+Run (in ``./run shell``): ``python bench/system.py [--duration 30] [--rates 200 1000]
+[--repeats 3] [--executors events single] [--realtime-priorities 0 10]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import random
@@ -36,8 +39,7 @@ from pathlib import Path
 import numpy as np
 
 os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(100, 200)))
-os.environ.pop('CYCLONEDDS_URI', None)
-os.environ['EXO_HAS_BACKEND'] = 'standalone'
+os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 
 from common import describe_machine, trial_cpu_shares
 
@@ -112,16 +114,18 @@ def timing(output: str) -> dict[str, float]:
     return {key: float(value) for key, value in zip(keys, match.groups(), strict=True)}
 
 
-def run(rate: float, duration: float, folder: Path, priority: int = 0) -> dict[str, object]:
-    """One session at a rate, the plants at a real-time priority (0: none); its figures."""
+def run(rate: float, duration: float, folder: Path, priority: int = 0,
+        executor: str = 'events') -> dict[str, object]:
+    """One session at a rate, on an executor, the plants at a real-time priority; its figures."""
     config = SessionConfig(('walk',), (duration,), rate, realtime_priority=priority)
-    session = Session(config, folder)
+    env = {'EXO_HAS_EXECUTOR': executor}
+    session = Session(config, folder, env=env)
     session.start(show=lambda line: None)
     assert session.started_at is not None
     probe = subprocess.Popen(
         [sys.executable, str(Path(__file__).with_name('probe.py')), '--rate', f'{rate:g}',
          '--duration', f'{session.started_at - time.monotonic() + duration:.2f}'],
-        stdout=subprocess.PIPE, text=True)
+        stdout=subprocess.PIPE, text=True, env={**os.environ, **env})
     try:
         shares = trial_cpu_shares(session, duration)
     finally:
@@ -138,6 +142,7 @@ def run(rate: float, duration: float, folder: Path, priority: int = 0) -> dict[s
     return {
         'fatal_events': fatal,
         'rate_hz': rate, 'duration_s': duration, 'realtime_priority': priority,
+        'executor': executor,
         'cpu_percent_of_one_core': {k: round(v, 1) for k, v in shares.items()},
         'cpu_percent_total': round(sum(shares.values()), 1),
         'plant_periods': periods, 'plant_missed_periods': missed,
@@ -163,31 +168,35 @@ def main() -> None:
     parser.add_argument('--realtime-priorities', type=int, nargs='+', default=[0],
                         help="SCHED_FIFO priorities of the plants' loops to compare, taking "
                              'turns (0: the default scheduler; others need root)')
+    parser.add_argument('--executors', nargs='+', default=['events'],
+                        choices=('events', 'single'), help='executors to compare, taking turns')
     args = parser.parse_args()
     results = []
     with tempfile.TemporaryDirectory() as scratch:
         for repeat in range(args.repeats):
             for rate in args.rates:
                 for priority in args.realtime_priorities:
-                    folder = Path(scratch) / f'rate_{rate:g}_{priority}_{repeat}'
-                    results.append(run(rate, args.duration, folder, priority))
-                    print(json.dumps(results[-1], indent=1), flush=True)
+                    for executor in args.executors:
+                        folder = Path(scratch) / f'rate_{rate:g}_{priority}_{executor}_{repeat}'
+                        results.append(run(rate, args.duration, folder, priority, executor))
+                        print(json.dumps(results[-1], indent=1), flush=True)
     medians = {}
-    for rate in args.rates:
-        for priority in args.realtime_priorities:
-            runs = [r for r in results
-                    if r['rate_hz'] == rate and r['realtime_priority'] == priority]
-            key = f'{rate:g} Hz, realtime priority {priority}'
-            medians[key] = {
-                name: float(np.median([r[name] for r in runs]))
-                for name in ('cpu_percent_total', 'missed_percent', 'late_percent')}
-            medians[key]['probe_missed_percent'] = float(
-                np.median([r['probe']['missed_percent'] for r in runs]))
+    for rate, priority, executor in itertools.product(args.rates, args.realtime_priorities,
+                                                      args.executors):
+        runs = [r for r in results if r['rate_hz'] == rate
+                and r['realtime_priority'] == priority and r['executor'] == executor]
+        key = f'{rate:g} Hz, {executor} executor, realtime priority {priority}'
+        medians[key] = {
+            name: float(np.median([r[name] for r in runs]))
+            for name in ('cpu_percent_total', 'missed_percent', 'late_percent')}
+        medians[key]['probe_missed_percent'] = float(
+            np.median([r['probe']['missed_percent'] for r in runs]))
     machine = describe_machine()
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / 'system.json').write_text(json.dumps(
         {'machine': machine, 'medians': medians, 'runs': results}, indent=1) + '\n')
     lines = [f'bench/system.py --duration {args.duration:g} --repeats {args.repeats} '
+             f'--executors {" ".join(args.executors)} '
              f'--realtime-priorities {" ".join(map(str, args.realtime_priorities))}: {machine}']
     for key, median in medians.items():
         lines.append(f'{key}, median of {args.repeats}: total CPU '
@@ -197,7 +206,8 @@ def main() -> None:
     for r in results:
         ref, cmd = r['latency_ms']['reference_to_state'], r['latency_ms']['command_to_state']
         lines.append(
-            f"{r['rate_hz']:g} Hz, realtime priority {r['realtime_priority']}: total CPU "
+            f"{r['rate_hz']:g} Hz, {r['executor']} executor, realtime priority "
+            f"{r['realtime_priority']}: total CPU "
             f"{r['cpu_percent_total']} % of one core; plants "
             f"missed {r['plant_missed_periods']}/{r['plant_periods']} ({r['missed_percent']} %), "
             f"late by over half a period {r['plant_late_periods']} ({r['late_percent']} %), "

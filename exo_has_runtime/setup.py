@@ -18,8 +18,8 @@ setup(
     maintainer='exo_has developers',
     maintainer_email='dev@exo-has.invalid',
     description=(
-        'The seam between exo_has nodes and ROS 2: rclpy where installed, a standalone '
-        'Cyclone DDS backend wire-compatible with rmw_cyclonedds_cpp elsewhere.'
+        'What exo_has adds to rclpy: the recorder, replay and bag tools, period timing, '
+        'real-time priority, launch-free process helpers for tests and the exo-has command.'
     ),
     license='Apache-2.0',
     tests_require=['pytest'],
@@ -31,7 +31,6 @@ setup(
             'recorder = exo_has_runtime.recorder:main',
         ],
         'exo_has.commands': [
-            'dds-config = exo_has_runtime.dds_config:main',
             'replay = exo_has_runtime.replay:main',
             'bag = exo_has_runtime.bag:main',
         ],

@@ -13,8 +13,15 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from rclpy.context import Context
+from rclpy.experimental import EventsExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from std_msgs.msg import Empty, Float64
+
 from exo_has_control.analysis import SessionData, read_session
 from exo_has_control.session import Session, SessionConfig
+from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
 from exo_has_runtime.bag import recover_bag
 from exo_has_runtime.profiles import SAFETY_EVENT_QOS
 from exo_has_runtime.topics import (
@@ -31,44 +38,30 @@ class Observer:
     """A node in the test process: watches events and commands, publishes loads and resets."""
 
     def __init__(self) -> None:
-        from exo_has_runtime.standalone import (
-            Context,
-            Node,
-            QoSProfile,
-            ReliabilityPolicy,
-            SingleThreadedExecutor,
-            get_message,
-            qos_profile_sensor_data,
-        )
-
         self.context = Context()
         self.context.init(['observer'])
         self.node = Node('test_observer', context=self.context)
         self.events: list[tuple[float, object]] = []
         self.commands: dict[str, list[tuple[float, float, bool]]] = defaultdict(list)
         self.lock = threading.Lock()
-        event_type = get_message('exo_has_msgs/msg/SafetyEvent')
-        self.node.create_subscription(event_type, SAFETY_EVENT_TOPIC, self._on_event,
+        self.node.create_subscription(SafetyEvent, SAFETY_EVENT_TOPIC, self._on_event,
                                       SAFETY_EVENT_QOS)
-        command_type = get_message('exo_has_msgs/msg/HasCommand')
-        state_type = get_message('exo_has_msgs/msg/HasState')
         self.states: dict[str, list[tuple[float, object]]] = defaultdict(list)
         for joint in JOINT_NAMES:
             self.node.create_subscription(
-                command_type, has_command_topic(joint),
+                HasCommand, has_command_topic(joint),
                 lambda c, j=joint: self._on_command(j, c), qos_profile_sensor_data)
             self.node.create_subscription(
-                state_type, has_state_topic(joint),
+                HasState, has_state_topic(joint),
                 lambda m, j=joint: self._on_state(j, m), qos_profile_sensor_data)
-        float64 = get_message('std_msgs/msg/Float64')
-        self.float64 = float64
-        self.loads = {j: self.node.create_publisher(float64, load_force_topic(j), 10)
+        self.float64 = Float64
+        self.loads = {j: self.node.create_publisher(Float64, load_force_topic(j), 10)
                       for j in JOINT_NAMES}
-        self.empty = get_message('std_msgs/msg/Empty')
+        self.empty = Empty
         self.reset = self.node.create_publisher(
-            self.empty, SAFETY_RESET_TOPIC,
+            Empty, SAFETY_RESET_TOPIC,
             QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
-        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor = EventsExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
@@ -76,6 +69,7 @@ class Observer:
     def _spin(self) -> None:
         while self.context.ok():
             self.executor.spin_once(timeout_sec=0.05)
+        self.executor.shutdown()
 
     def _on_event(self, event: object) -> None:
         with self.lock:

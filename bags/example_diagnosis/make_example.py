@@ -27,8 +27,7 @@ sys.path.insert(0, str(ROOT / 'test'))
 
 import truth_plant as tp  # noqa: E402
 
-from exo_has_runtime.bag import BagWriter  # noqa: E402
-from exo_has_runtime.standalone.messages import default_registry  # noqa: E402
+from exo_has_runtime.bag import BagWriter, default_typestore, ensure_message_type  # noqa: E402
 from exo_has_sim.diagnosis.cli import main  # noqa: E402
 from exo_has_sim.kinematics import Linkage  # noqa: E402
 
@@ -38,45 +37,60 @@ FRICTION = 80.0  # N
 T0_NS = 1_764_000_000_000_000_000
 
 
-def stamp(message: object, ns: int) -> None:
-    """Set a message's header stamp to ns [ns since the epoch]."""
-    header = message.header  # type: ignore[attr-defined]
-    header.stamp.sec, header.stamp.nanosec = divmod(ns, 1_000_000_000)
+STATE = 'exo_has_msgs/msg/HasState'
+COMMAND = 'exo_has_msgs/msg/HasCommand'
+JOINTS = 'sensor_msgs/msg/JointState'
 
 
 def write_bag(draw: tp.Draw, path: Path) -> None:
-    """Write a draw's commands, states and references to a rosbag2 MCAP bag at path."""
-    registry = default_registry()
-    state_type = registry.get_message('exo_has_msgs/msg/HasState')
-    command_type = registry.get_message('exo_has_msgs/msg/HasCommand')
-    joints_type = registry.get_message('sensor_msgs/msg/JointState')
+    """Write a draw's commands, states and references to a rosbag2 MCAP bag at path.
+
+    The messages are serialized with rosbags, not rclpy: rclpy's ``serialize_message``
+    (rmw_fastrtps_cpp) leaves CDR's padding bytes uninitialised, so the committed bag would
+    change at every run, and makes a JointState with an empty sequence longer than its data,
+    which rosbags then refuses to read (test/test_wire.py).
+    """
+    typestore = default_typestore()
+    for msgtype in (STATE, COMMAND, JOINTS):
+        ensure_message_type(msgtype, typestore)
+    types = typestore.types
+
+    def header(ns: int) -> object:
+        sec, nanosec = divmod(ns, 1_000_000_000)
+        return types['std_msgs/msg/Header'](
+            stamp=types['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec), frame_id='')
+
+    def cdr(message: object, msgtype: str) -> bytes:
+        return bytes(typestore.serialize_cdr(message, msgtype))
+
     linkage = Linkage.from_parameters(tp.nominal_parameters('hip'))
     c = draw.columns
     angles = np.asarray(linkage.angle(c['reference']), dtype=float)
     period_ns = round(draw.period * 1e9)
+    none = np.zeros(0)
     with BagWriter(path, compress=True) as writer:
-        writer.add_topic(f'/{JOINT}/has_state', 'exo_has_msgs/msg/HasState')
-        writer.add_topic(f'/{JOINT}/has_command', 'exo_has_msgs/msg/HasCommand')
-        writer.add_topic('/joint_reference', 'sensor_msgs/msg/JointState')
+        writer.add_topic(f'/{JOINT}/has_state', STATE)
+        writer.add_topic(f'/{JOINT}/has_command', COMMAND)
+        writer.add_topic('/joint_reference', JOINTS)
         for k in range(len(c['time'])):
             t = T0_NS + k * period_ns
-            reference = joints_type(name=[JOINT], position=[float(angles[k])], velocity=[],
-                                    effort=[])
-            stamp(reference, t)
-            writer.write('/joint_reference', t, registry.serialize(reference))
-            state = state_type(joint=JOINT, position=float(c['position'][k]),
-                               velocity=math.nan, pressure_a=float(c['pressure_a'][k]),
-                               pressure_b=float(c['pressure_b'][k]),
-                               motor_speed=float(c['motor_speed'][k]),
-                               motor_speed_command=float(c['motor_speed_command'][k - 1])
-                               if k else 0.0, motor_current=math.nan,
-                               load_force=float(c['load_force'][k]), valve_mode=1)
-            stamp(state, t)
-            writer.write(f'/{JOINT}/has_state', t, registry.serialize(state))
-            command = command_type(joint=JOINT, motor_speed=float(c['motor_speed_command'][k]),
-                                   enable=True)
-            stamp(command, t + 1_000_000)
-            writer.write(f'/{JOINT}/has_command', t + 1_000_000, registry.serialize(command))
+            reference = types[JOINTS](header=header(t), name=[JOINT],
+                                      position=np.array([angles[k]]), velocity=none,
+                                      effort=none)
+            writer.write('/joint_reference', t, cdr(reference, JOINTS))
+            state = types[STATE](header=header(t), joint=JOINT,
+                                 position=float(c['position'][k]), velocity=math.nan,
+                                 pressure_a=float(c['pressure_a'][k]),
+                                 pressure_b=float(c['pressure_b'][k]),
+                                 motor_speed=float(c['motor_speed'][k]),
+                                 motor_speed_command=float(c['motor_speed_command'][k - 1])
+                                 if k else 0.0, motor_current=math.nan,
+                                 load_force=float(c['load_force'][k]), valve_mode=1)
+            writer.write(f'/{JOINT}/has_state', t, cdr(state, STATE))
+            command = types[COMMAND](header=header(t + 1_000_000), joint=JOINT,
+                                     motor_speed=float(c['motor_speed_command'][k]),
+                                     enable=True)
+            writer.write(f'/{JOINT}/has_command', t + 1_000_000, cdr(command, COMMAND))
 
 
 def make() -> int:

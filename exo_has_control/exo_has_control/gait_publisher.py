@@ -13,26 +13,16 @@ shape, such as CGA data), the right leg half a cycle behind the left::
 from __future__ import annotations
 
 import math
-import sys
+
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import JointState
 
 from exo_has_control.trajectory import JOINTS, ReferenceTable, Schedule, TrialPlan
-from exo_has_runtime import (
-    STARTUP_ERRORS,
-    ExternalShutdownException,
-    FloatingPointRange,
-    Node,
-    ParameterDescriptor,
-    get_logger,
-    get_message,
-    init,
-    qos_profile_sensor_data,
-    spin,
-    try_shutdown,
-)
+from exo_has_runtime.execution import run_node
 from exo_has_runtime.topics import JOINT_REFERENCE_TOPIC
 from exo_has_sim.gait import WINTER, load_gait_cycle
-
-JointState = get_message('sensor_msgs/msg/JointState')
 
 
 def _range(low: float, high: float) -> list[FloatingPointRange]:
@@ -120,21 +110,8 @@ class GaitPublisher(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Run the gait publisher until interrupted."""
-    init(args=args)
-    node = None
-    try:
-        node = GaitPublisher()
-        spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except STARTUP_ERRORS as exc:
-        get_logger('gait_publisher').fatal(f'cannot start: {exc}')
-        raise SystemExit(1) from None
-    finally:
-        if node is not None:
-            node.destroy_node()
-        try_shutdown()
+    run_node(GaitPublisher, args, name='gait_publisher')
 
 
 if __name__ == '__main__':
-    main(sys.argv)
+    main()

@@ -14,24 +14,17 @@ Gains are per joint type, ``hip.kp``, ``hip.kd``, ``hip.kff``, ``knee.kp`` and s
 
 from __future__ import annotations
 
-import sys
 from functools import partial
+
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import JointState
 
 from exo_has_control.pd import PAPER_KD, PAPER_KP, PdGains, PositionLoop
 from exo_has_control.tracking import ReferenceFollower
-from exo_has_runtime import (
-    STARTUP_ERRORS,
-    ExternalShutdownException,
-    FloatingPointRange,
-    Node,
-    ParameterDescriptor,
-    get_logger,
-    get_message,
-    init,
-    qos_profile_sensor_data,
-    spin,
-    try_shutdown,
-)
+from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
+from exo_has_runtime.execution import run_node
 from exo_has_runtime.profiles import SAFETY_EVENT_QOS
 from exo_has_runtime.topics import (
     JOINT_NAMES,
@@ -43,11 +36,6 @@ from exo_has_runtime.topics import (
 )
 from exo_has_sim.parameters import HasParameters, load_parameters
 from exo_has_sim.plant import joint_type_of
-
-HasCommand = get_message('exo_has_msgs/msg/HasCommand')
-HasState = get_message('exo_has_msgs/msg/HasState')
-SafetyEvent = get_message('exo_has_msgs/msg/SafetyEvent')
-JointState = get_message('sensor_msgs/msg/JointState')
 
 GAIN_RANGE = [FloatingPointRange(from_value=0.0, to_value=1.0e7)]
 
@@ -163,21 +151,8 @@ class PdController(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Run the controller until interrupted."""
-    init(args=args)
-    node = None
-    try:
-        node = PdController()
-        spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except STARTUP_ERRORS as exc:
-        get_logger('pd_controller').fatal(f'cannot start: {exc}')
-        raise SystemExit(1) from None
-    finally:
-        if node is not None:
-            node.destroy_node()
-        try_shutdown()
+    run_node(PdController, args, name='pd_controller')
 
 
 if __name__ == '__main__':
-    main(sys.argv)
+    main()

@@ -11,6 +11,7 @@ integration tests run sessions.
 
 from __future__ import annotations
 
+import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -31,6 +32,10 @@ from exo_has_sim.plant import joint_type_of
 
 #: Time allowed for a node to report ready [s]; a plant's first start compiles the model.
 READY_TIMEOUT = 120.0
+
+#: Pause after each stage of nodes came up [s]: their first matches with the running nodes
+#: settle before the next stage starts (and the watchdog starts judging).
+SETTLE_TIME = 1.0
 
 #: What moves the joints: plant nodes, or simulated CAN devices behind the hardware driver.
 HARDWARE = ('plants', 'can')
@@ -215,14 +220,28 @@ class Session:
                     show(f'started {spec.name} (pid {self.processes[spec.name].process.pid})')
                 for spec in group if stage > 0 else ():
                     self.processes[spec.name].wait_for_output(spec.ready, READY_TIMEOUT)
+                time.sleep(SETTLE_TIME)
             if 'recorder' in self.processes:
-                topics = len(recorded_topics())  # load topics come when someone publishes
-                self.processes['recorder'].wait_for_output(rf'recording {topics} topics',
-                                                           READY_TIMEOUT)
+                # At least the session's own topics (load topics come when someone publishes,
+                # and the count rises by as many as discovery found at once).
+                self._wait_for_recording(len(recorded_topics()))
             self.started_at = time.monotonic() + self.config.start_delay
         except BaseException:
             self.stop()
             raise
+
+    def _wait_for_recording(self, topics: int) -> None:
+        recorder = self.processes['recorder']
+        deadline = time.monotonic() + READY_TIMEOUT
+        while True:
+            counts = [int(n) for n in re.findall(r'recording (\d+) topics', recorder.output)]
+            if counts and max(counts) >= topics:
+                return
+            if time.monotonic() > deadline or recorder.process.poll() is not None:
+                msg = (f'the recorder did not subscribe to {topics} topics within '
+                       f'{READY_TIMEOUT:g} s; its output:\n{recorder.output}')
+                raise TimeoutError(msg)
+            time.sleep(0.05)
 
     def run(self, show: Callable[[str], None] = print, interval: float = 2.0,
             extra: float = 1.0) -> None:

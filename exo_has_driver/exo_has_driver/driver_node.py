@@ -11,12 +11,14 @@ Threads: the master runs its own I/O thread, which alone owns the bus, sends the
 ``rate`` and supervises the slaves: the SYNC must not jitter with the executor (DDS traffic,
 logging, garbage collection: a drive applies its RPDO at the SYNC), and a fault must stop the
 motors even if this process's executor is held up. The node hands each command to the master
-as it arrives (``spin``, one wake-up per command: the master writes the newest at its next
-SYNC), and its timer, at the same rate, publishes the states and events that came in. A
-state's sample is thus published within a period of its SYNC, and the command it provokes is
-applied at the first SYNC after the command arrives: one period of loop delay, as the plant
-node gives, where handing commands over at the timer (``spin_paced``) doubled it and made the
-knees overshoot into their end stops on a loaded machine.
+as it arrives (the events executor runs a callback per message: the master writes the newest
+at its next SYNC), and its timer, at the same rate, publishes the states and events that came
+in. A state's sample is thus published within a period of its SYNC, and the command it
+provokes is applied at the first SYNC after the command arrives: one period of loop delay, as
+the plant node gives, where handing the commands over in a batch at the timer doubled it and
+made the knees overshoot into their end stops on a loaded machine. SIGINT and SIGTERM end the
+spin (:func:`exo_has_runtime.execution.run_node`); the node is then destroyed, which stops the
+motors and joins the I/O thread before the process exits.
 
 Topics: ``<joint>/has_command`` in (``qos_profile_sensor_data``), ``<joint>/has_state`` out
 (stamped with the hardware receive time of the sensor board's TPDO; the load force is not
@@ -40,6 +42,11 @@ import sys
 import time
 from functools import partial
 
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from std_msgs.msg import Empty
+
 from exo_has_driver import can_dictionary as cd
 from exo_has_driver import safety
 from exo_has_driver.errors import HardwareConfigError, MasterStoppedError
@@ -56,20 +63,8 @@ from exo_has_driver.hardware.master import (
 )
 from exo_has_driver.hardware.units import DriveUnits
 from exo_has_driver.node_parameters import checked_joints, joint_type_parameters
-from exo_has_runtime import (
-    STARTUP_ERRORS,
-    ExternalShutdownException,
-    FloatingPointRange,
-    IntegerRange,
-    Node,
-    ParameterDescriptor,
-    get_logger,
-    get_message,
-    init,
-    qos_profile_sensor_data,
-    spin,
-    try_shutdown,
-)
+from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
+from exo_has_runtime.execution import run_node
 from exo_has_runtime.profiles import SAFETY_EVENT_QOS
 from exo_has_runtime.realtime import MAX_PRIORITY, set_realtime_priority
 from exo_has_runtime.topics import (
@@ -80,11 +75,6 @@ from exo_has_runtime.topics import (
     has_state_topic,
 )
 from exo_has_sim.plant import joint_type_of
-
-HasCommand = get_message('exo_has_msgs/msg/HasCommand')
-HasState = get_message('exo_has_msgs/msg/HasState')
-SafetyEvent = get_message('exo_has_msgs/msg/SafetyEvent')
-Empty = get_message('std_msgs/msg/Empty')
 
 #: Own events remembered to recognise them on the shared topic.
 OWN_EVENTS = 256
@@ -157,8 +147,9 @@ class Driver(Node):
         def read_only(description: str, **ranges: object) -> ParameterDescriptor:
             return ParameterDescriptor(description=description, read_only=True, **ranges)
 
+        # An empty list (joints:=[]) has no type in rcl and reads None: checked_joints says so.
         joints = list(declare('joints', list(JOINT_NAMES), read_only(
-            f'joints on the bus, among {", ".join(JOINT_NAMES)}')).value)
+            f'joints on the bus, among {", ".join(JOINT_NAMES)}')).value or ())
         interface = declare('interface', 'socketcan', read_only(
             'python-can interface: socketcan (robot), udp_multicast (between processes), '
             'virtual')).value
@@ -351,27 +342,13 @@ def _state(sample: JointSample) -> HasState:
 
 
 def main(args: list[str] | None = None) -> None:
-    """Run the driver until interrupted."""
+    """Run the driver until interrupted; exit with status 1 if the CAN master stops."""
     sys.setswitchinterval(SWITCH_INTERVAL)  # see SWITCH_INTERVAL: the SYNC must not wait 5 ms
-    init(args=args)
-    node = None
     try:
-        node = Driver()
-        spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        run_node(Driver, args, name='driver')
     except MasterStoppedError:
-        raise SystemExit(1) from None  # logged FATAL by the node
-    except STARTUP_ERRORS as exc:
-        if node is not None:
-            raise  # not a bad configuration but a fault while running: keep its traceback
-        get_logger('driver').fatal(f'cannot start: {exc}')
-        raise SystemExit(1) from None
-    finally:
-        if node is not None:
-            node.destroy_node()
-        try_shutdown()
+        raise SystemExit(1) from None  # logged FATAL by the node, which is destroyed by now
 
 
 if __name__ == '__main__':
-    main(sys.argv)
+    main()

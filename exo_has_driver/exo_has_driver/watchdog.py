@@ -2,6 +2,11 @@
 
 Feeds each joint's HasState and HasCommand and the joint references, with their receive time on
 the node clock, to :class:`exo_has_driver.safety.Watchdog`, and checks staleness at ``rate``.
+Each message is taken as it arrives (the events executor of :mod:`exo_has_runtime.execution`
+runs one callback per message), so a check judges every message that arrived before it: after
+a hold-up of the executor, rclpy 7.1.6 runs the queued messages' callbacks first, then one
+check. The subscriptions keep a second of each topic (``DEEP_SENSOR_QOS``), so a watchdog held
+up still sees each sample once it runs again.
 Its events go out on ``safety_events`` (reliable, transient local, so that a node started later
 learns of a latched stop), a summary per joint on ``/diagnostics`` at 1 Hz, and, while a stop
 is latched, stop commands (motor speed 0, drive disabled) on every joint's ``has_command`` at
@@ -14,28 +19,22 @@ is latched, stop commands (motor speed 0, drive disabled) on every joint's ``has
 
 from __future__ import annotations
 
-import sys
 from functools import partial
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from rclpy.time import Time
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Empty
 
 from exo_has_driver import safety
 from exo_has_driver.errors import SafetyConfigError
 from exo_has_driver.node_parameters import checked_joints, joint_type_parameters
-from exo_has_runtime import (
-    STARTUP_ERRORS,
-    ExternalShutdownException,
-    FloatingPointRange,
-    IntegerRange,
-    Node,
-    ParameterDescriptor,
-    Time,
-    get_logger,
-    get_message,
-    init,
-    qos_profile_sensor_data,
-    spin_paced,
-    try_shutdown,
-)
-from exo_has_runtime.profiles import PACED_SENSOR_QOS, SAFETY_EVENT_QOS
+from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
+from exo_has_runtime.execution import run_node
+from exo_has_runtime.profiles import DEEP_SENSOR_QOS, SAFETY_EVENT_QOS
 from exo_has_runtime.topics import (
     DIAGNOSTICS_TOPIC,
     JOINT_NAMES,
@@ -47,16 +46,7 @@ from exo_has_runtime.topics import (
 )
 from exo_has_sim.plant import joint_type_of
 
-HasCommand = get_message('exo_has_msgs/msg/HasCommand')
-HasState = get_message('exo_has_msgs/msg/HasState')
-SafetyEvent = get_message('exo_has_msgs/msg/SafetyEvent')
-JointState = get_message('sensor_msgs/msg/JointState')
-Empty = get_message('std_msgs/msg/Empty')
-DiagnosticArray = get_message('diagnostic_msgs/msg/DiagnosticArray')
-DiagnosticStatus = get_message('diagnostic_msgs/msg/DiagnosticStatus')
-KeyValue = get_message('diagnostic_msgs/msg/KeyValue')
-
-# The message's own constants: bytes under rclpy, int on the standalone backend.
+# The core's levels are ints; the message's constants are one byte each (bytes in rclpy).
 LEVELS = {safety.LEVEL_OK: DiagnosticStatus.OK, safety.LEVEL_WARN: DiagnosticStatus.WARN,
           safety.LEVEL_ERROR: DiagnosticStatus.ERROR, safety.LEVEL_STALE: DiagnosticStatus.STALE}
 
@@ -71,9 +61,10 @@ class Watchdog(Node):
     def __init__(self) -> None:
         super().__init__('watchdog')
         declare = self.declare_parameter
+        # An empty list (joints:=[]) has no type in rcl and reads None: checked_joints says so.
         joints = list(declare('joints', list(JOINT_NAMES), ParameterDescriptor(
             description=f'joints watched, among {", ".join(JOINT_NAMES)}',
-            read_only=True)).value)
+            read_only=True)).value or ())
         rate = declare('rate', 200.0, ParameterDescriptor(
             description='staleness check and stop-command rate [Hz]', read_only=True,
             floating_point_range=_floats(1.0, 2000.0))).value
@@ -136,11 +127,11 @@ class Watchdog(Node):
             for joint in self._joints}
         for joint in self._joints:
             self.create_subscription(HasState, has_state_topic(joint),
-                                     partial(self._on_state, joint), PACED_SENSOR_QOS)
+                                     partial(self._on_state, joint), DEEP_SENSOR_QOS)
             self.create_subscription(HasCommand, has_command_topic(joint),
-                                     partial(self._on_command, joint), PACED_SENSOR_QOS)
+                                     partial(self._on_command, joint), DEEP_SENSOR_QOS)
         self.create_subscription(JointState, JOINT_REFERENCE_TOPIC, self._on_reference,
-                                 PACED_SENSOR_QOS)
+                                 DEEP_SENSOR_QOS)
         self.create_subscription(Empty, SAFETY_RESET_TOPIC, self._on_reset, 10)
         self.create_timer(self._period, self._on_tick)
         self.create_timer(1.0, self._on_diagnostics)
@@ -269,24 +260,8 @@ class Watchdog(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Run the watchdog until interrupted."""
-    init(args=args)
-    node = None
-    try:
-        node = Watchdog()
-        # Every message is checked, in a batch at each tick: no wake-up per message.
-        spin_paced(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except STARTUP_ERRORS as exc:
-        if node is not None:
-            raise  # not a bad configuration but a fault while running: keep its traceback
-        get_logger('watchdog').fatal(f'cannot start: {exc}')
-        raise SystemExit(1) from None
-    finally:
-        if node is not None:
-            node.destroy_node()
-        try_shutdown()
+    run_node(Watchdog, args, name='watchdog')
 
 
 if __name__ == '__main__':
-    main(sys.argv)
+    main()

@@ -2,6 +2,7 @@ import math
 
 import numpy as np
 import pytest
+from diagnostic_msgs.msg import DiagnosticStatus
 
 from exo_has_driver import safety
 from exo_has_driver.errors import SafetyConfigError
@@ -28,7 +29,7 @@ from exo_has_driver.safety import (
     SafetyLimits,
     Watchdog,
 )
-from exo_has_runtime.standalone import get_message
+from exo_has_msgs.msg import HasState, SafetyEvent
 from exo_has_runtime.topics import JOINT_NAMES
 from exo_has_sim.kinematics import Linkage
 from exo_has_sim.parameters import load_parameters
@@ -75,18 +76,16 @@ def only(events):
 
 
 def test_kinds_severities_valve_modes_and_levels_are_numbered_as_the_messages():
-    event_type = get_message('exo_has_msgs/msg/SafetyEvent')
-    state_type = get_message('exo_has_msgs/msg/HasState')
-    status_type = get_message('diagnostic_msgs/msg/DiagnosticStatus')
-    for name in dir(event_type):
+    for name in dir(SafetyEvent):
         if name.startswith(('KIND_', 'SEVERITY_')):
-            assert getattr(safety, name) == getattr(event_type, name), name
-    assert set(safety.KIND_NAMES) == {getattr(event_type, n) for n in dir(event_type)
+            assert getattr(safety, name) == getattr(SafetyEvent, name), name
+    assert set(safety.KIND_NAMES) == {getattr(SafetyEvent, n) for n in dir(SafetyEvent)
                                       if n.startswith('KIND_')}
     for name in ('VALVE_FREE', 'VALVE_ASSIST', 'VALVE_RELIEF'):
-        assert getattr(safety, name) == getattr(state_type, name)
+        assert getattr(safety, name) == getattr(HasState, name)
+    # The core's levels are ints; the message's byte constants are one byte each in rclpy.
     for name in ('OK', 'WARN', 'ERROR', 'STALE'):
-        assert getattr(safety, f'LEVEL_{name}') == getattr(status_type, name)
+        assert bytes([getattr(safety, f'LEVEL_{name}')]) == getattr(DiagnosticStatus, name)
 
 
 def test_limits_come_from_the_parameter_sets_and_the_control_period():

@@ -1,15 +1,17 @@
+"""The watchdog node in a process, its peers (plants, controllers) in the test process."""
+
 import math
 import time
 
 import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.experimental import EventsExecutor
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from std_msgs.msg import Empty
 
+from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
 from exo_has_runtime.profiles import SAFETY_EVENT_QOS
-from exo_has_runtime.standalone import (
-    Node,
-    SingleThreadedExecutor,
-    get_message,
-    qos_profile_sensor_data,
-)
 from exo_has_runtime.testing.processes import NodeProcess
 from exo_has_runtime.topics import (
     DIAGNOSTICS_TOPIC,
@@ -20,20 +22,22 @@ from exo_has_runtime.topics import (
     has_state_topic,
 )
 
-HasCommand = get_message('exo_has_msgs/msg/HasCommand')
-HasState = get_message('exo_has_msgs/msg/HasState')
-SafetyEvent = get_message('exo_has_msgs/msg/SafetyEvent')
-Empty = get_message('std_msgs/msg/Empty')
-DiagnosticArray = get_message('diagnostic_msgs/msg/DiagnosticArray')
-
 WATCHDOG = 'exo_has_driver.watchdog'
 PERIOD = 0.005  # s: the rig plays plants and controllers at 200 Hz
+# Time for a new participant to meet the watchdog: Fast DDS's discovery on loopback takes from
+# 0.1 s to its 3 s announcement period, more on a loaded machine.
+DISCOVERY_S = 10.0
 # Stale after 20 periods (100 ms) rather than 10: the rig's Python loop shares the machine.
 ARGS = ['--ros-args', '-p', 'stale_periods:=20', '-p', 'startup_grace:=3.0']
 # Time from a fault reaching the watchdog to its stop commands reaching every joint; measured
-# here at about 1 ms (loopback, standalone backend), bounded generously for loaded machines.
+# here at 4 to 7 ms (loopback, rclpy 7.1.6 on Fast DDS, the machine shared with other tests),
+# bounded generously for loaded machines.
 STOP_BOUND = 0.1  # s
-EVENTS_QOS = SAFETY_EVENT_QOS
+
+
+def stamp_ns(message):
+    """Return a message's header stamp in nanoseconds."""
+    return message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec
 
 
 class Rig:
@@ -41,7 +45,8 @@ class Rig:
 
     def __init__(self, context, joints=JOINT_NAMES):
         self.node = Node('rig', context=context)
-        self.executor = SingleThreadedExecutor(context=context)
+        # The events executor, as the nodes use: the rig takes about 2,000 messages a second.
+        self.executor = EventsExecutor(context=context)
         self.executor.add_node(self.node)
         self.joints = joints
         self.states = {joint: {'position': 0.065, 'pressure_a': 5.0e6, 'pressure_b': 1.0e6,
@@ -50,6 +55,7 @@ class Rig:
         self.silent = set()
         self.events = []  # (receive time [s, monotonic], SafetyEvent)
         self.stops = {joint: [] for joint in joints}  # receive times of stop commands
+        self.stop_stamps = {joint: [] for joint in joints}  # (receive time, header stamp [ns])
         self.diagnostics = []
         self.state_publishers = {j: self.node.create_publisher(
             HasState, has_state_topic(j), qos_profile_sensor_data) for j in joints}
@@ -66,11 +72,13 @@ class Rig:
         """Subscribe to the safety events as a controller does, recording receive times."""
         self.node.create_subscription(
             SafetyEvent, SAFETY_EVENT_TOPIC,
-            lambda event: self.events.append((time.monotonic(), event)), EVENTS_QOS)
+            lambda event: self.events.append((time.monotonic(), event)), SAFETY_EVENT_QOS)
 
     def _on_command(self, command):
         if not command.enable:
-            self.stops[command.joint].append(time.monotonic())
+            now = time.monotonic()
+            self.stops[command.joint].append(now)
+            self.stop_stamps[command.joint].append((now, stamp_ns(command)))
 
     def publish(self):
         """Publish one period of states (but the silent joints') and enabled commands."""
@@ -115,23 +123,41 @@ class Rig:
         """Ask the watchdog to release its stop."""
         self.reset_publisher.publish(Empty())
 
+    def close(self):
+        """Destroy the executor and the node, before their context shuts down."""
+        self.executor.shutdown()
+        self.node.destroy_node()
 
-def start_rig(context, watchdog, joints=JOINT_NAMES):
+
+@pytest.fixture
+def make_rig(ros_context):
+    """Give a function that builds a :class:`Rig` on the test's context, closed after it."""
+    rigs = []
+
+    def make(joints=JOINT_NAMES):
+        rigs.append(Rig(ros_context, joints))
+        return rigs[-1]
+    yield make
+    for rig in rigs:
+        rig.close()
+
+
+def start_rig(make_rig, watchdog, joints=JOINT_NAMES):
     watchdog.wait_for_output(r'watchdog ready', timeout_s=10.0)
-    rig = Rig(context, joints)
+    rig = make_rig(joints)
     rig.listen_to_events()
 
     def matched():
         return (all(p.get_subscription_count() for p in rig.state_publishers.values())
                 and rig.reset_publisher.get_subscription_count()
                 and rig.node.count_publishers(SAFETY_EVENT_TOPIC))
-    assert rig.run(5.0, matched), watchdog.output
+    assert rig.run(DISCOVERY_S, matched), watchdog.output
     return rig
 
 
-def test_a_fatal_fault_stops_every_joint_and_a_reset_on_the_topic_releases_it(ros_context):
+def test_a_fatal_fault_stops_every_joint_and_a_reset_on_the_topic_releases_it(make_rig):
     with NodeProcess(WATCHDOG, ARGS) as watchdog:
-        rig = start_rig(ros_context, watchdog)
+        rig = start_rig(make_rig, watchdog)
         rig.run(0.5)
         assert rig.events == [], [e.text for _, e in rig.events]
         assert not any(rig.stops.values())
@@ -168,6 +194,10 @@ def test_a_fatal_fault_stops_every_joint_and_a_reset_on_the_topic_releases_it(ro
         latency = max(stops.values()) - t0
         assert (event.joint, event.severity, event.value, event.limit, event.latched) == (
             'left_knee', SafetyEvent.SEVERITY_FATAL, 18.0e6, 18.0e6, True)
+        # Sent in the callback that raised the event, not at the next check: the same stamp.
+        assert {j: min(s for t, s in stamps if t >= t0)
+                for j, stamps in rig.stop_stamps.items()} == dict.fromkeys(JOINT_NAMES,
+                                                                           stamp_ns(event))
         assert latency < STOP_BOUND, (f'event after {(event_time - t0) * 1e3:.1f} ms, stops '
                                       f'after {latency * 1e3:.1f} ms')
 
@@ -201,14 +231,14 @@ def test_a_fatal_fault_stops_every_joint_and_a_reset_on_the_topic_releases_it(ro
     assert watchdog.process.returncode == 0, watchdog.output
 
 
-def test_a_late_joiner_learns_of_the_latched_stop_that_silence_caused(ros_context):
+def test_a_late_joiner_learns_of_the_latched_stop_that_silence_caused(make_rig):
     args = ['--ros-args', '-p', 'joints:=[left_hip]', '-p', 'startup_grace:=0.3']
     with NodeProcess(WATCHDOG, args) as watchdog:
         watchdog.wait_for_output(r'left_hip: stale command', timeout_s=10.0)
-        rig = Rig(ros_context, joints=('left_hip',))
+        rig = make_rig(joints=('left_hip',))
         rig.listen_to_events()  # after the events: transient local delivers them
         rig.silent.add('left_hip')
-        assert rig.run(3.0, lambda: len(rig.events) >= 2)
+        assert rig.run(DISCOVERY_S, lambda: len(rig.events) >= 2), watchdog.output
         assert [(e.kind, e.severity, e.latched, e.limit) for _, e in rig.events] == [
             (SafetyEvent.KIND_STALE_STATE, SafetyEvent.SEVERITY_FATAL, True, 0.3),
             (SafetyEvent.KIND_STALE_COMMAND, SafetyEvent.SEVERITY_FATAL, True, 0.3)]
@@ -222,11 +252,24 @@ def test_a_late_joiner_learns_of_the_latched_stop_that_silence_caused(ros_contex
 @pytest.mark.parametrize(('override', 'message'), [
     ('joints:=[left_hip,left_ankle]',
      "cannot start: parameter joints: unknown joint 'left_ankle': expected one of left_hip"),
-    ('rate:=5000.0', r"cannot start: parameter 'rate' .* outside \[1.0, 2000.0\]"),
+    ('rate:=5000.0', r'cannot start: .*Parameter rate out of range Min: 1.0, Max: 2000.0'),
+    ('rate:=fast', "cannot start: Trying to set parameter 'rate' to 'fast' of type 'STRING', "
+                   "expecting type 'DOUBLE'"),
+    ('joints:=[]', 'cannot start: parameter joints is empty'),
     ('params_knee:=hip', 'cannot start: parameter params_knee: hip is a hip parameter set'),
 ])
 def test_a_bad_setting_ends_the_node_at_start_naming_it(override, message):
     with NodeProcess(WATCHDOG, ['--ros-args', '-p', override]) as watchdog:
         assert watchdog.wait(timeout_s=20.0) == 1
         watchdog.wait_for_output(message, timeout_s=0.1)
+        assert 'Traceback' not in watchdog.output
+
+
+def test_a_malformed_params_file_ends_the_node_at_start_in_one_line(tmp_path):
+    params = tmp_path / 'watchdog.yaml'
+    params.write_text('/**:\n  ros__parameters:\n    rate: [200.0,\n', encoding='utf-8')
+    with NodeProcess(WATCHDOG, ['--ros-args', '--params-file', str(params)]) as watchdog:
+        assert watchdog.wait(timeout_s=20.0) == 2
+        watchdog.wait_for_output(r'\[FATAL\] \[watchdog\]: cannot start: bad ROS arguments: .*'
+                                 r"Couldn't parse params file", timeout_s=0.1)
         assert 'Traceback' not in watchdog.output

@@ -1,8 +1,9 @@
-"""Exceptions of the exo_has runtime seam.
+"""Exceptions of exo_has_runtime: bags, replay, message types and command lines.
 
-Every error raised on purpose by this package derives from :class:`RuntimeSeamError`. Where rclpy
-has an exception for the same condition, the class here carries rclpy's name, so that node code
-that catches it works on both backends.
+Every error raised on purpose by this package derives from :class:`RuntimeSeamError` (the name
+is kept from the time this package was a seam between backends: other packages catch it). The
+conditions rclpy knows (a parameter of the wrong type, a shutdown while spinning) are rclpy's
+own exceptions, raised by rclpy.
 """
 
 from __future__ import annotations
@@ -12,59 +13,16 @@ class RuntimeSeamError(Exception):
     """Base of every error raised by exo_has_runtime."""
 
 
-class BackendError(RuntimeSeamError):
-    """The requested backend cannot be used."""
-
-
-class MessageDefinitionError(RuntimeSeamError):
-    """A message definition (.msg file) is malformed or refers to an unknown type."""
-
-
 class UnknownMessageTypeError(RuntimeSeamError, LookupError):
-    """A message type name that no known package defines."""
+    """A message type name that no known package defines, or that is malformed."""
 
 
-class NameValidationError(RuntimeSeamError, ValueError):
-    """A node name, namespace or topic name that ROS 2 would reject."""
+class MalformedMessageError(RuntimeSeamError, ValueError):
+    """Serialized bytes that do not deserialize as the message type they are said to be."""
 
 
 class CommandLineError(RuntimeSeamError, ValueError):
     """Malformed ROS command-line arguments or parameters file."""
-
-
-class TopicTypeMismatchError(RuntimeSeamError, TypeError):
-    """A topic used with two different message types."""
-
-
-class ParameterException(RuntimeSeamError):
-    """Base of the parameter errors, named as in rclpy.exceptions."""
-
-
-class ParameterNotDeclaredException(ParameterException, KeyError):
-    """A parameter that was not declared."""
-
-    def __str__(self) -> str:  # KeyError would quote the message
-        return str(self.args[0]) if self.args else ''
-
-
-class ParameterAlreadyDeclaredException(ParameterException):
-    """A parameter declared twice."""
-
-
-class InvalidParameterTypeException(ParameterException, TypeError):
-    """A parameter value of another type than the declared one."""
-
-
-class InvalidParameterValueException(ParameterException, ValueError):
-    """A parameter value outside its declared range or rejected by a callback."""
-
-
-class ParameterImmutableException(ParameterException):
-    """An attempt to change a read-only parameter."""
-
-
-class ExternalShutdownException(RuntimeSeamError):
-    """The context was shut down from outside (a signal or another thread) while spinning."""
 
 
 class BagError(RuntimeSeamError):

@@ -1,44 +1,37 @@
-"""Record topics to a bag (rosbag2, MCAP): the CDR bytes as received, stamped at publication.
+"""Record topics to a bag (rosbag2, MCAP): the CDR bytes as received, stamped at reception.
 
-Each message is written as received (raw, never deserialised). Its bag time is its publication time
-(the DDS source timestamp, which rclpy and the standalone backend both pass as MessageInfo), so
-that the bag keeps the original timing although the recorder takes its messages in batches, every
-``take_period``; under ``use_sim_time`` it is the node clock's simulated time at the take instead
-(0 before the first ``/clock``). Topics and types come from graph discovery, checked every
-``discovery_period``; a topic is subscribed once it has a publisher, with the QoS
-:mod:`exo_has_runtime.recording` derives from the publishers' offers. The bag is flushed as a
-complete chunk every ``flush_period``, so a killed recorder loses at most that much (``exo-has bag
-recover``), and is closed (``metadata.yaml`` written) on SIGINT and SIGTERM.
+Each message is written as received, never deserialised: a raw subscription hands over its
+serialized bytes. Its bag time is the node clock's time when its callback runs, as rosbag2's
+``recv_timestamp`` is (the publication time would need the callback's ``MessageInfo``, which
+rclpy 7.1.6's EventsExecutor cannot pass: see :mod:`exo_has_runtime.execution`). That is the
+system time, read with ``time.time_ns()`` (the same clock at a thirtieth of the cost of
+``Clock.now()``), or under ``use_sim_time`` the simulated time (0 before the first ``/clock``);
+which one is checked again every ``discovery_period``. Topics and types come from graph
+discovery, every ``discovery_period``; a topic is subscribed once it has a publisher, with the
+QoS :mod:`exo_has_runtime.recording` derives from the publishers' offers. The bag is flushed as
+a complete chunk every ``flush_period``, so a killed recorder loses at most that much
+(``exo-has bag recover``), and is closed (``metadata.yaml`` written) when the node is
+destroyed, which :func:`~exo_has_runtime.execution.run_node` does on SIGINT and SIGTERM.
 """
 
 from __future__ import annotations
 
-import sys
+import time
 from collections.abc import Callable
 from datetime import datetime
 from typing import Any
 
-from exo_has_runtime import (
-    Clock,
-    ClockType,
-    DurabilityPolicy,
-    ExternalShutdownException,
-    FloatingPointRange,
-    HistoryPolicy,
-    InvalidParameterValueException,
-    Node,
-    ParameterDescriptor,
-    QoSProfile,
-    ReliabilityPolicy,
-    get_message,
-    init,
-    spin_paced,
-    try_shutdown,
-)
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.subscription import Subscription
+
 from exo_has_runtime.bag import BagWriter, offered_qos
 from exo_has_runtime.errors import BagError
+from exo_has_runtime.execution import run_node
+from exo_has_runtime.message_types import message_class
 from exo_has_runtime.recording import (
-    RECORD_DEPTH,
     QosChoice,
     bag_path,
     subscription_qos,
@@ -55,6 +48,7 @@ class Recorder(Node):
         self.declare_parameter('output', '', ParameterDescriptor(
             description='bag directory to create; empty: '
                         '~/.ros/exo_has_bags/session_<YYYYmmdd_HHMMSS>'))
+        # Dynamically typed: an empty list default would otherwise fix the type to a byte array.
         self.declare_parameter('topics', [], ParameterDescriptor(
             description='topics to record (string array); empty: every topic of the graph '
                         'but the hidden ones and ros_discovery_info', dynamic_typing=True))
@@ -64,35 +58,35 @@ class Recorder(Node):
         self.declare_parameter('flush_period', 1.0, ParameterDescriptor(
             description='period of the writes to disk [s]: what a crash may lose',
             floating_point_range=[FloatingPointRange(from_value=0.05, to_value=60.0)]))
-        self.declare_parameter('take_period', 0.05, ParameterDescriptor(
-            description='period at which the waiting messages are taken and written [s]; a '
-                        f'topic holds {RECORD_DEPTH} messages in between',
-            floating_point_range=[FloatingPointRange(from_value=0.001, to_value=1.0)]))
         self.declare_parameter('compress', False, ParameterDescriptor(
             description='compress the chunks with zstd'))
         topics = self.get_parameter('topics').value or []
         if not isinstance(topics, list) or not all(isinstance(t, str) for t in topics):
             msg = f'parameter topics must be a list of topic names, got {topics!r}'
-            raise InvalidParameterValueException(msg)
+            raise ValueError(msg)
         self._wanted = {self.resolve_topic_name(topic) for topic in topics} or None
         self._path = bag_path(self.get_parameter('output').value, datetime.now())
-        self._bag: BagWriter | None = BagWriter(
-            self._path, compress=bool(self.get_parameter('compress').value))
+        try:
+            self._bag: BagWriter | None = BagWriter(
+                self._path, compress=bool(self.get_parameter('compress').value))
+        except BagError as exc:  # a bad configuration: run_node reports it in one line
+            msg = f'parameter output: {exc}'
+            raise ValueError(msg) from exc
+        self._sim_time = self.get_clock().ros_time_is_active
         # Topic: (subscription, the QoS it asks for).
-        self._recorded: dict[str, tuple[Any, QosChoice]] = {}
+        self._recorded: dict[str, tuple[Subscription, QosChoice]] = {}
         self._given_up: set[str] = set()
         # Discovery and disk writes run on wall time, also while simulated time stands still.
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(self.get_parameter('discovery_period').value, self._discover,
                           clock=steady)
         self.create_timer(self.get_parameter('flush_period').value, self._flush, clock=steady)
-        # Paces the takes (spin_paced): the messages are handed over just before it runs.
-        self.create_timer(self.get_parameter('take_period').value, lambda: None, clock=steady)
         wanted = ', '.join(sorted(self._wanted)) if self._wanted else 'every topic'
         self.get_logger().info(f'opened bag {self._path}; waiting for publishers on {wanted}')
         self._discover()
 
     def _discover(self) -> None:
+        self._sim_time = self.get_clock().ros_time_is_active
         new, ambiguous = topics_to_record(self.get_topic_names_and_types(), self._wanted,
                                           {*self._recorded, *self._given_up})
         for topic, types in ambiguous:
@@ -105,7 +99,7 @@ class Recorder(Node):
                     f'subscribing again {_describe(weaker)}')
                 self.destroy_subscription(subscription)
                 self._recorded[topic] = (self.create_subscription(
-                    subscription.msg_type, topic, subscription.callback, _profile(weaker),
+                    subscription.msg_type, topic, self._writer_for(topic), qos_profile(weaker),
                     raw=True), weaker)
         added = 0
         for topic, msgtype in new:
@@ -119,27 +113,26 @@ class Recorder(Node):
     def _subscribe(self, topic: str, msgtype: str, offers: list[Any]) -> bool:
         assert self._bag is not None
         try:
-            message_type = get_message(msgtype)
+            message_type = message_class(msgtype)
             self._bag.add_topic(topic, msgtype, [offered_qos(offer) for offer in offers])
         except Exception as exc:  # one topic of an unknown type must not stop the others
             self._give_up(topic, str(exc))
             return False
         choice = subscription_qos(offers)
         self._recorded[topic] = (self.create_subscription(
-            message_type, topic, self._writer_for(topic), _profile(choice), raw=True), choice)
+            message_type, topic, self._writer_for(topic), qos_profile(choice), raw=True), choice)
         return True
 
     def _offers(self, topic: str) -> list[Any]:
         return [info.qos_profile for info in self.get_publishers_info_by_topic(topic)]
 
-    def _writer_for(self, topic: str) -> Callable[[bytes, dict[str, Any]], None]:
-        bag, clock = self._bag, self.get_clock()
+    def _writer_for(self, topic: str) -> Callable[[bytes], None]:
+        bag, clock, wall_ns = self._bag, self.get_clock(), time.time_ns
         assert bag is not None
+        write = bag.write
 
-        def on_message(data: bytes, info: dict[str, Any]) -> None:
-            stamp = clock.now().nanoseconds if clock.ros_time_is_active \
-                else info['source_timestamp']
-            bag.write(topic, stamp, data)
+        def on_message(data: bytes) -> None:
+            write(topic, clock.now().nanoseconds if self._sim_time else wall_ns(), data)
         return on_message
 
     def _give_up(self, topic: str, reason: str) -> None:
@@ -165,7 +158,8 @@ class Recorder(Node):
         super().destroy_node()
 
 
-def _profile(choice: QosChoice) -> QoSProfile:
+def qos_profile(choice: QosChoice) -> QoSProfile:
+    """Return the rclpy QoS profile of a recording's or replay's choice (keep last)."""
     return QoSProfile(
         history=HistoryPolicy.KEEP_LAST, depth=choice.depth,
         reliability=ReliabilityPolicy.RELIABLE if choice.reliable
@@ -181,19 +175,8 @@ def _describe(choice: QosChoice) -> str:
 
 def main(args: list[str] | None = None) -> None:
     """Record until interrupted (SIGINT or SIGTERM), then close the bag."""
-    init(args=args)
-    node = None
-    try:
-        node = Recorder()
-        # Messages are taken in batches at the take_period timer: no wake-up per message.
-        spin_paced(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        try_shutdown()
+    run_node(Recorder, args, name='recorder')
 
 
 if __name__ == '__main__':
-    main(sys.argv)
+    main()

@@ -8,7 +8,9 @@ topic such as ``safety_events`` kept from before the recorder started) only when
 does; sensor-data topics, published best effort, are thus recorded best effort. Its history is
 deep (:data:`RECORD_DEPTH`, or more if a transient-local publisher keeps more) so that a burst
 while the recorder is busy is not overwritten unread. Replay offers what was recorded: reliable
-and transient local when every recorded publisher offered it, with their deepest history.
+and transient local when every recorded publisher offered it, with their deepest history where
+the graph told it (rmw_fastrtps_cpp reports a publisher's history as unknown, depth 0: then
+:data:`DEFAULT_REPLAY_DEPTH`).
 """
 
 from __future__ import annotations
@@ -37,8 +39,7 @@ RECORD_DEPTH = 1000
 #: QoS of a replayed topic whose bag recorded none: rclpy's default (reliable, volatile, 10).
 DEFAULT_REPLAY_DEPTH = 10
 
-# rmw's numbering of the policies (rclpy's and the standalone backend's IntEnums).
-_KEEP_ALL = 2
+# rmw's numbering of the policies (rclpy's IntEnums).
 _RELIABLE = 1
 _TRANSIENT_LOCAL = 1
 
@@ -53,7 +54,7 @@ class QosChoice:
 
 
 class OfferedProfile(Protocol):
-    """What :func:`subscription_qos` reads of an rclpy (or standalone) ``QoSProfile``."""
+    """What :func:`subscription_qos` reads of an rclpy ``QoSProfile``."""
 
     @property
     def history(self) -> int: ...  # noqa: D102
@@ -158,15 +159,15 @@ def replay_qos(recorded: Sequence[Qos]) -> QosChoice:
     """Return the QoS a replay publishes a topic with, from the offers its bag recorded.
 
     Reliable and transient local when every recorded publisher offered them, with the
-    deepest recorded history; without a record, reliable, volatile, depth
-    :data:`DEFAULT_REPLAY_DEPTH`.
+    deepest keep-last history recorded (:data:`DEFAULT_REPLAY_DEPTH` where none is known);
+    without a record, reliable, volatile, depth :data:`DEFAULT_REPLAY_DEPTH`.
     """
     if not recorded:
         return QosChoice(True, False, DEFAULT_REPLAY_DEPTH)
     reliable = all(q.reliability == QosReliability.RELIABLE for q in recorded)
     latched = all(q.durability == QosDurability.TRANSIENT_LOCAL for q in recorded)
-    depths = [q.depth for q in recorded if q.history != QosHistory.KEEP_ALL]
-    return QosChoice(reliable, latched, max([1, *depths]))
+    depths = [q.depth for q in recorded if q.history == QosHistory.KEEP_LAST and q.depth > 0]
+    return QosChoice(reliable, latched, max(depths, default=DEFAULT_REPLAY_DEPTH))
 
 
 def check_rate(rate: float) -> float:

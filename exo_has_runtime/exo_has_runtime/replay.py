@@ -1,10 +1,10 @@
 """``exo-has replay BAG``: publish a bag's messages again, as recorded, at a chosen rate.
 
-Each message's CDR bytes go out unchanged on its topic, at its bag time since the first
-replayed message divided by ``--rate``, measured on the steady clock; each topic is published
-with the QoS its bag recorded (:func:`exo_has_runtime.recording.replay_qos`). A 1 ms timer
-does the publishing, so messages leave up to about a millisecond late (more on a loaded
-machine), never early.
+Each message's CDR bytes go out unchanged on its topic (rclpy publishes ``bytes`` as a
+serialized message, never deserialised here), at its bag time since the first replayed message
+divided by ``--rate``, measured on the steady clock; each topic is published with the QoS its
+bag recorded (:func:`exo_has_runtime.recording.replay_qos`). A 1 ms timer does the publishing,
+so messages leave up to about a millisecond late (more on a loaded machine), never early.
 """
 
 from __future__ import annotations
@@ -15,22 +15,15 @@ from collections.abc import Iterator, Sequence
 from contextlib import ExitStack
 from pathlib import Path
 
-from exo_has_runtime import (
-    Clock,
-    ClockType,
-    DurabilityPolicy,
-    ExternalShutdownException,
-    HistoryPolicy,
-    Node,
-    QoSProfile,
-    ReliabilityPolicy,
-    get_message,
-    init,
-    spin,
-    try_shutdown,
-)
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from rclpy.publisher import Publisher
+
 from exo_has_runtime.bag import BagMessage, bag_topics, read_messages
-from exo_has_runtime.errors import BagError, ReplayError
+from exo_has_runtime.errors import BagError, ReplayError, UnknownMessageTypeError
+from exo_has_runtime.execution import run_node
+from exo_has_runtime.message_types import message_class
+from exo_has_runtime.recorder import qos_profile
 from exo_has_runtime.recording import (
     check_rate,
     replay_offset_ns,
@@ -74,20 +67,15 @@ class Replayer(Node):
         self._looping = loop
         self._wait_for_subscribers = wait_for_subscribers
         recorded = {topic.topic: topic for topic in bag_topics(bag)}
-        self._outputs = {}
+        self._outputs: dict[str, Publisher] = {}
         for topic in topics:
             try:
-                message_type = get_message(recorded[topic].msgtype)
-            except Exception as exc:  # a type unknown here leaves its topic out, not the rest
+                message_type = message_class(recorded[topic].msgtype)
+            except UnknownMessageTypeError as exc:  # it leaves its topic out, not the rest
                 self.get_logger().warning(f'not replaying {topic}: {exc}')
                 continue
-            choice = replay_qos(recorded[topic].offered_qos)
-            self._outputs[topic] = self.create_publisher(message_type, topic, QoSProfile(
-                history=HistoryPolicy.KEEP_LAST, depth=choice.depth,
-                reliability=ReliabilityPolicy.RELIABLE if choice.reliable
-                else ReliabilityPolicy.BEST_EFFORT,
-                durability=DurabilityPolicy.TRANSIENT_LOCAL if choice.transient_local
-                else DurabilityPolicy.VOLATILE))
+            self._outputs[topic] = self.create_publisher(
+                message_type, topic, qos_profile(replay_qos(recorded[topic].offered_qos)))
         if not self._outputs:
             msg = f'none of the topics of {bag} can be published here'
             raise ReplayError(msg)
@@ -132,7 +120,8 @@ class Replayer(Node):
                 self._open()
                 return
             self.get_logger().info(f'replayed {self._published} messages')
-            try_shutdown()
+            # Ends the spinning (run_node then destroys the node).
+            self.context.try_shutdown()
 
     def _subscribed(self) -> bool:
         if not self._wait_for_subscribers:
@@ -175,23 +164,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (BagError, ReplayError) as exc:
         print(f'exo-has replay: {exc}', file=sys.stderr)
         return 1
-    init(args=['exo-has-replay', *ros_args])
-    node = None
-    code = 0
+    bag = Path(args.bag).expanduser()
     try:
-        node = Replayer(Path(args.bag).expanduser(), topics, rate, args.loop, args.delay,
-                        args.wait_for_subscribers)
-        spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except ReplayError as exc:
-        print(f'exo-has replay: {exc}', file=sys.stderr)
-        code = 1
-    finally:
-        if node is not None:
-            node.destroy_node()
-        try_shutdown()
-    return code
+        run_node(lambda: Replayer(bag, topics, rate, args.loop, args.delay,
+                                  args.wait_for_subscribers),
+                 ['exo-has-replay', *ros_args], name='replay')
+    except SystemExit as exc:  # run_node's exit on a bad start: this command returns its code
+        return exc.code if isinstance(exc.code, int) else 1
+    return 0
 
 
 if __name__ == '__main__':

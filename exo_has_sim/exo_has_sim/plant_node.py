@@ -10,22 +10,14 @@ the HasState with the valve mode. Run one per joint::
 from __future__ import annotations
 
 import math
-import sys
 
-from exo_has_runtime import (
-    STARTUP_ERRORS,
-    ExternalShutdownException,
-    FloatingPointRange,
-    IntegerRange,
-    Node,
-    ParameterDescriptor,
-    get_logger,
-    get_message,
-    init,
-    qos_profile_sensor_data,
-    spin_paced,
-    try_shutdown,
-)
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from std_msgs.msg import Float64
+
+from exo_has_msgs.msg import HasCommand, HasState
+from exo_has_runtime.execution import run_node
 from exo_has_runtime.realtime import MAX_PRIORITY, set_realtime_priority
 from exo_has_runtime.timing import PeriodMonitor
 from exo_has_runtime.topics import (
@@ -38,10 +30,6 @@ from exo_has_runtime.topics import (
 from exo_has_sim.loads import PAPER_LOAD_MASS, default_load_force
 from exo_has_sim.parameters import load_parameters
 from exo_has_sim.plant import Plant, joint_type_of
-
-HasCommand = get_message('exo_has_msgs/msg/HasCommand')
-HasState = get_message('exo_has_msgs/msg/HasState')
-Float64 = get_message('std_msgs/msg/Float64')
 
 
 class PlantNode(Node):
@@ -141,22 +129,8 @@ class PlantNode(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Run one plant until interrupted."""
-    init(args=args)
-    node = None
-    try:
-        node = PlantNode()
-        # Commands matter only at the ticks: no wake-up per command.
-        spin_paced(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except STARTUP_ERRORS as exc:
-        get_logger('plant').fatal(f'cannot start: {exc}')
-        raise SystemExit(1) from None
-    finally:
-        if node is not None:
-            node.destroy_node()
-        try_shutdown()
+    run_node(PlantNode, args, name='plant')
 
 
 if __name__ == '__main__':
-    main(sys.argv)
+    main()

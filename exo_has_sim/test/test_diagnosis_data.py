@@ -149,12 +149,11 @@ def test_jittery_stamps_are_resampled_and_a_long_gap_is_refused():
 
 
 def test_one_joints_topics_are_read_from_a_bag(tmp_path):
-    from exo_has_runtime.bag import BagWriter
-    from exo_has_runtime.standalone.messages import default_registry
+    from rclpy.serialization import serialize_message
 
-    registry = default_registry()
-    command_type = registry.get_message('exo_has_msgs/msg/HasCommand')
-    state_type = registry.get_message('exo_has_msgs/msg/HasState')
+    from exo_has_msgs.msg import HasCommand, HasState
+    from exo_has_runtime.bag import BagWriter
+
     samples = 300
     t0 = 1_700_000_000_000_000_000
     with BagWriter(tmp_path / 'bag') as writer:
@@ -163,21 +162,20 @@ def test_one_joints_topics_are_read_from_a_bag(tmp_path):
         writer.add_topic('/right_hip/has_state', 'exo_has_msgs/msg/HasState')
         for k in range(samples):
             stamp = t0 + k * 5_000_000
-            state = state_type(joint='left_knee', position=0.05 + 1e-5 * k, pressure_a=2e6,
-                               motor_speed=3.0, motor_speed_command=0.0,
-                               load_force=math.nan)
+            state = HasState(joint='left_knee', position=0.05 + 1e-5 * k, pressure_a=2e6,
+                             motor_speed=3.0, motor_speed_command=0.0, load_force=math.nan)
             state.header.stamp.sec, state.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
-            writer.write('/left_knee/has_state', stamp, registry.serialize(state))
-            other = state_type(joint='right_hip', position=0.1)
+            writer.write('/left_knee/has_state', stamp, serialize_message(state))
+            other = HasState(joint='right_hip', position=0.1)
             other.header.stamp.sec, other.header.stamp.nanosec = state.header.stamp.sec, \
                 state.header.stamp.nanosec
-            writer.write('/right_hip/has_state', stamp, registry.serialize(other))
+            writer.write('/right_hip/has_state', stamp, serialize_message(other))
             # The controller answers 1 ms after the state, commanding k rad/s.
-            command = command_type(joint='left_knee', motor_speed=1.0 * k, enable=k != 7)
+            command = HasCommand(joint='left_knee', motor_speed=1.0 * k, enable=k != 7)
             answer = stamp + 1_000_000
             command.header.stamp.sec, command.header.stamp.nanosec = divmod(answer,
                                                                           1_000_000_000)
-            writer.write('/left_knee/has_command', answer, registry.serialize(command))
+            writer.write('/left_knee/has_command', answer, serialize_message(command))
     m = read_bag(tmp_path / 'bag', 'left_knee', HIP)
     assert m.samples == samples
     assert_allclose(m.period, 0.005, rtol=1e-9)

@@ -50,7 +50,8 @@ def test_missing_and_unknown_values_and_effects_are_named(tmp_path):
     path.write_text(text.replace('      damping: 1500.0\n', '      dampin: 1500.0\n'))
     with pytest.raises(ParameterError, match='missing damping'):
         load_parameters(path)
-    path.write_text(text.replace('      effects: {}', '      effects: {colomb_friction: 5.0}'))
+    path.write_text(text.replace('      damping: 1500.0\n',
+                                 '      damping: 1500.0\n      effects: {colomb_friction: 5.0}\n'))
     with pytest.raises(ParameterError, match='unknown effect colomb_friction'):
         load_parameters(path)
     path.write_text('has: {}\n')
@@ -68,10 +69,18 @@ def test_effects_and_relations_are_checked():
     assert params.with_effects(coulomb_friction=50.0).effects.enabled == ['coulomb_friction']
 
 
-def test_the_parameter_files_are_ros2_params_files():
-    from exo_has_runtime.arguments import load_params_file
-    overrides = load_params_file(CONFIG_DIR / 'hip.yaml')
-    names = {o.name: o.value for o in overrides}
-    assert names['has.bore_diameter'] == 0.014
-    assert names['provenance.bore_diameter'].startswith('assumed')
-    assert all(o.node_pattern == '/**' for o in overrides)
+def test_the_parameter_files_are_ros2_params_files_that_rcl_reads():
+    from rclpy.context import Context
+    from rclpy.node import Node
+
+    context = Context()
+    context.init(['test', '--ros-args', '--params-file', str(CONFIG_DIR / 'hip.yaml')])
+    try:
+        node = Node('any_node', context=context,
+                    automatically_declare_parameters_from_overrides=True)
+        assert node.get_parameter('has.bore_diameter').value == 0.014
+        assert node.get_parameter('has.bulk_modulus').value == load_parameters('hip').bulk_modulus
+        assert node.get_parameter('provenance.bore_diameter').value.startswith('assumed')
+        node.destroy_node()
+    finally:
+        context.try_shutdown()

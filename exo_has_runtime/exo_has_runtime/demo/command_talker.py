@@ -4,23 +4,14 @@ from __future__ import annotations
 
 import math
 import statistics
-import sys
 
-from exo_has_runtime import (
-    ExternalShutdownException,
-    FloatingPointRange,
-    Node,
-    ParameterDescriptor,
-    get_message,
-    init,
-    qos_profile_sensor_data,
-    spin,
-    try_shutdown,
-)
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+
+from exo_has_msgs.msg import HasCommand, HasState
+from exo_has_runtime.execution import run_node
 from exo_has_runtime.topics import JOINT_NAMES, has_command_topic, has_state_topic
-
-HasCommand = get_message('exo_has_msgs/msg/HasCommand')
-HasState = get_message('exo_has_msgs/msg/HasState')
 
 
 class CommandTalker(Node):
@@ -36,12 +27,14 @@ class CommandTalker(Node):
         self.declare_parameter('frequency', 0.5, ParameterDescriptor(
             description='sine frequency [Hz]'))
         self.declare_parameter('duration', 0.0, ParameterDescriptor(
-            description='seconds to run before shutting down; 0 runs until interrupted'))
+            description='seconds to send once every command topic has a subscriber, then shut '
+                        'down; 0 runs until interrupted'))
         self._rate = self.get_parameter('rate').value
         self._amplitude = self.get_parameter('amplitude').value
         self._frequency = self.get_parameter('frequency').value
         self._duration = self.get_parameter('duration').value
-        self._start_ns = self.get_clock().now().nanoseconds
+        # Set once every command topic has a subscriber: discovery takes seconds here.
+        self._start_ns: int | None = None
         self._sent = 0
         self._round_trips_s: list[float] = []
         self._command_publishers = {
@@ -56,10 +49,14 @@ class CommandTalker(Node):
 
     def _on_tick(self) -> None:
         now = self.get_clock().now()
+        if self._start_ns is None:
+            if any(p.get_subscription_count() == 0 for p in self._command_publishers.values()):
+                return
+            self._start_ns = now.nanoseconds
         elapsed_s = (now.nanoseconds - self._start_ns) * 1e-9
         if self._duration and elapsed_s >= self._duration:
             self._on_report()
-            try_shutdown()
+            self.context.try_shutdown()  # ends the spin loop of run_node
             return
         speed = self._amplitude * math.sin(2.0 * math.pi * self._frequency * elapsed_s)
         for joint, publisher in self._command_publishers.items():
@@ -88,18 +85,8 @@ class CommandTalker(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Run the node until interrupted or its duration is over."""
-    init(args=args)
-    node = None
-    try:
-        node = CommandTalker()
-        spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        try_shutdown()
+    run_node(CommandTalker, args, name='command_talker')
 
 
 if __name__ == '__main__':
-    main(sys.argv)
+    main()

@@ -3,21 +3,13 @@
 from __future__ import annotations
 
 import math
-import sys
 
-from exo_has_runtime import (
-    ExternalShutdownException,
-    Node,
-    get_message,
-    init,
-    qos_profile_sensor_data,
-    spin,
-    try_shutdown,
-)
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+
+from exo_has_msgs.msg import HasCommand, HasState
+from exo_has_runtime.execution import run_node
 from exo_has_runtime.topics import JOINT_NAMES, has_command_topic, has_state_topic
-
-HasCommand = get_message('exo_has_msgs/msg/HasCommand')
-HasState = get_message('exo_has_msgs/msg/HasState')
 
 
 class StateEcho(Node):
@@ -48,18 +40,8 @@ class StateEcho(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Run the node until interrupted."""
-    init(args=args)
-    node = None
-    try:
-        node = StateEcho()
-        spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        try_shutdown()
+    run_node(StateEcho, args, name='state_echo')
 
 
 if __name__ == '__main__':
-    main(sys.argv)
+    main()

@@ -16,17 +16,13 @@ import time
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from exo_has_runtime import (
-    DurabilityPolicy,
-    ExternalShutdownException,
-    Node,
-    QoSProfile,
-    ReliabilityPolicy,
-    get_message,
-    init,
-    spin_once,
-    try_shutdown,
-)
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+from exo_has_runtime.errors import UnknownMessageTypeError
+from exo_has_runtime.message_types import message_class
 
 
 def fill_message(message: Any, fields: Mapping[str, Any]) -> Any:
@@ -39,7 +35,7 @@ def fill_message(message: Any, fields: Mapping[str, Any]) -> Any:
             item_type = type(current[0]) if current else None
             if item_type is None:
                 nested = message.get_fields_and_field_types()[name]
-                item_type = get_message(nested.split('<', 1)[-1].split(',')[0].rstrip('>'))
+                item_type = message_class(nested.split('<', 1)[-1].split(',')[0].rstrip('>'))
             setattr(message, name, [fill_message(item_type(), item) for item in value])
         else:
             setattr(message, name, value)
@@ -68,11 +64,12 @@ def record(node: Node, specs: Sequence[str], qos: QoSProfile, count: int,
 
     for spec in specs:
         topic, type_name = spec.split('=', 1)
-        node.create_subscription(get_message(type_name), topic, callback_for(topic), qos, raw=True)
+        node.create_subscription(message_class(type_name), topic, callback_for(topic), qos,
+                                 raw=True)
     print('READY', flush=True)
     deadline = time.monotonic() + duration_s
     while (count <= 0 or received < count) and time.monotonic() < deadline:
-        spin_once(node, timeout_sec=0.05)
+        rclpy.spin_once(node, timeout_sec=0.05)
 
 
 def publish(node: Node, specs: Sequence[str], qos: QoSProfile, wait: bool, period_s: float,
@@ -81,7 +78,7 @@ def publish(node: Node, specs: Sequence[str], qos: QoSProfile, wait: bool, perio
     items = []
     for spec in specs:
         topic, type_name, fields = spec.split('=', 2)
-        message_type = get_message(type_name)
+        message_type = message_class(type_name)
         publisher = node.create_publisher(message_type, topic, qos)
         items.append((publisher, fill_message(message_type(), json.loads(fields))))
     print('READY', flush=True)
@@ -89,14 +86,14 @@ def publish(node: Node, specs: Sequence[str], qos: QoSProfile, wait: bool, perio
     while wait and any(p.get_subscription_count() == 0 for p, _ in items):
         if time.monotonic() > deadline:
             return
-        spin_once(node, timeout_sec=0.02)
+        rclpy.spin_once(node, timeout_sec=0.02)
     while True:
         for publisher, message in items:
             publisher.publish(message)
         print('PUBLISHED', flush=True)
         end = time.monotonic() + period_s
         while time.monotonic() < min(end, deadline):
-            spin_once(node, timeout_sec=0.02)
+            rclpy.spin_once(node, timeout_sec=0.02)
         if time.monotonic() >= deadline:
             return
 
@@ -114,7 +111,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument('--no-wait', action='store_true', help='publish: do not wait for match')
     parser.add_argument('--name', default='peer', help='node name')
     args, ros_args = parser.parse_known_args(sys.argv[1:] if argv is None else argv)
-    init(args=['peers', *ros_args])
+    rclpy.init(args=['peers', *ros_args])
     node = Node(args.name)
     try:
         if args.role == 'record':
@@ -122,11 +119,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         else:
             publish(node, args.specs, _qos(args.qos), not args.no_wait, args.period,
                     args.duration)
+    except UnknownMessageTypeError as exc:
+        print(f'peers: {exc}', file=sys.stderr, flush=True)
+        return 2
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
         node.destroy_node()
-        try_shutdown()
+        rclpy.try_shutdown()
     return 0
 
 

@@ -1,0 +1,91 @@
+import signal
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+
+import pytest
+from rclpy.experimental import EventsExecutor
+from rclpy.node import Node
+
+from exo_has_msgs.msg import HasCommand
+from exo_has_runtime.execution import executor_kind, make_executor, spin
+from exo_has_runtime.testing.processes import NodeProcess
+
+
+def test_events_executor_still_fails_callbacks_that_take_the_message_info(ros_context):
+    # exo_has_runtime.execution works around this defect of rclpy 7.1.6: revisit it if it goes.
+    node = Node('message_info_probe', context=ros_context)
+    publisher = node.create_publisher(HasCommand, 'probe', 10)
+    node.create_subscription(HasCommand, 'probe', lambda message, info: None, 10)
+    executor = EventsExecutor(context=ros_context)
+    executor.add_node(node)
+    with pytest.raises(SystemError):
+        deadline = time.monotonic() + 5.0
+        while time.monotonic() < deadline:
+            publisher.publish(HasCommand())
+            executor.spin_once(timeout_sec=0.05)
+    executor.shutdown()
+    node.destroy_node()
+
+
+def test_events_executor_spin_still_ignores_sigint_while_a_timer_runs():
+    # The reason spin() calls spin_once in slices: revisit it if this starts to pass through.
+    code = textwrap.dedent("""
+        import rclpy
+        from rclpy.experimental import EventsExecutor
+        from rclpy.node import Node
+        rclpy.init()
+        node = Node('sigint_probe')
+        node.create_timer(0.005, lambda: None)
+        executor = EventsExecutor()
+        executor.add_node(node)
+        print('spinning', flush=True)
+        executor.spin()
+    """)
+    process = subprocess.Popen([sys.executable, '-c', code], stdout=subprocess.PIPE, text=True)
+    try:
+        assert process.stdout is not None
+        assert process.stdout.readline().strip() == 'spinning'
+        process.send_signal(signal.SIGINT)
+        with pytest.raises(subprocess.TimeoutExpired):
+            process.wait(timeout=2.0)
+    finally:
+        process.kill()
+        process.wait()
+
+
+def test_spin_returns_once_its_stop_event_is_set(ros_context):
+    node = Node('stop_probe', context=ros_context)
+    ticks = []
+    node.create_timer(0.005, lambda: ticks.append(time.monotonic()))
+    stop = threading.Event()
+    threading.Timer(0.3, stop.set).start()
+    started = time.monotonic()
+    spin(node, EventsExecutor(context=ros_context), stop=stop)
+    assert 0.25 < time.monotonic() - started < 1.0
+    assert len(ticks) > 20
+    node.destroy_node()
+
+
+def test_an_unknown_executor_name_is_refused_naming_the_choices(monkeypatch, ros_context):
+    monkeypatch.setenv('EXO_HAS_EXECUTOR', 'multi')
+    with pytest.raises(ValueError, match="EXO_HAS_EXECUTOR='multi': expected one of events, "
+                                         'single'):
+        executor_kind()
+    monkeypatch.setenv('EXO_HAS_EXECUTOR', 'single')
+    assert type(make_executor(context=ros_context)).__name__ == 'SingleThreadedExecutor'
+
+
+@pytest.mark.parametrize('stop_signal', [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
+def test_a_stop_signal_ends_a_node_cleanly_with_its_last_words_logged(stop_signal):
+    with NodeProcess('exo_has_sim.plant_node', ['--ros-args', '-p', 'joint:=left_hip']) as plant:
+        plant.wait_for_output('plant ready', timeout_s=120)
+        plant.process.send_signal(stop_signal)
+        assert plant.wait(timeout_s=5) == 0
+        output = plant.output
+    # The plant's timing summary, logged by destroy_node, still reached a valid context.
+    assert 'left_hip plant: ' in output and ' periods, ' in output
+    assert 'Traceback' not in output
+    assert 'Failed to publish log message to rosout' not in output
