@@ -44,7 +44,7 @@ os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 from common import describe_machine, trial_cpu_shares
 
 from exo_has_control.analysis import read_session
-from exo_has_control.session import Session, SessionConfig
+from exo_has_control.session import COMPOSITION, Session, SessionConfig
 from exo_has_runtime.topics import JOINT_NAMES
 
 RESULTS = Path(__file__).resolve().parent / 'results'
@@ -106,18 +106,28 @@ TIMING = re.compile(r'(\d+) periods, (\d+) missed, (\d+) late by over half a per
                     r'lateness p99 ([\d.]+) ms p99\.9 ([\d.]+) ms max ([\d.]+) ms')
 
 
-def timing(output: str) -> dict[str, float]:
-    """Parse the timing summary a plant or the probe printed at its end."""
-    match = TIMING.search(output)
+def timing(output: str, joint: str = '') -> dict[str, float]:
+    """Parse the timing summary a plant (of a joint) or the probe printed at its end."""
+    match = re.search(rf'{joint} plant: ' + TIMING.pattern if joint else TIMING, output)
     assert match, output
     keys = ('periods', 'missed', 'late', 'p99_ms', 'p99_9_ms', 'max_ms')
     return {key: float(value) for key, value in zip(keys, match.groups(), strict=True)}
 
 
+#: Ways to share the nodes among processes (``--compositions``): process name -> nodes.
+COMPOSITIONS: dict[str, dict[str, tuple[str, ...]]] = {
+    'separate': {},
+    'plants': COMPOSITION,
+    'plants,control': {**COMPOSITION, 'control': ('pd_controller', 'gait_publisher')},
+    'plants+control': {'robot': (*COMPOSITION['plants'], 'pd_controller', 'gait_publisher')},
+}
+
+
 def run(rate: float, duration: float, folder: Path, priority: int = 0,
-        executor: str = 'events') -> dict[str, object]:
+        executor: str = 'events', composition: str = 'plants') -> dict[str, object]:
     """One session at a rate, on an executor, the plants at a real-time priority; its figures."""
-    config = SessionConfig(('walk',), (duration,), rate, realtime_priority=priority)
+    config = SessionConfig(('walk',), (duration,), rate, realtime_priority=priority,
+                           composition=COMPOSITIONS[composition])
     env = {'EXO_HAS_EXECUTOR': executor}
     session = Session(config, folder, env=env)
     session.start(show=lambda line: None)
@@ -131,7 +141,7 @@ def run(rate: float, duration: float, folder: Path, priority: int = 0,
     finally:
         session.stop()
         probe_output = probe.communicate(timeout=60.0)[0]
-    plants = [timing(session.output(f'{joint}_plant')) for joint in JOINT_NAMES]
+    plants = [timing(session.output(f'{joint}_plant'), joint) for joint in JOINT_NAMES]
     periods = int(sum(p['periods'] for p in plants))
     missed = int(sum(p['missed'] for p in plants))
     late = int(sum(p['late'] for p in plants))
@@ -142,7 +152,7 @@ def run(rate: float, duration: float, folder: Path, priority: int = 0,
     return {
         'fatal_events': fatal,
         'rate_hz': rate, 'duration_s': duration, 'realtime_priority': priority,
-        'executor': executor,
+        'executor': executor, 'composition': composition,
         'cpu_percent_of_one_core': {k: round(v, 1) for k, v in shares.items()},
         'cpu_percent_total': round(sum(shares.values()), 1),
         'plant_periods': periods, 'plant_missed_periods': missed,
@@ -170,22 +180,30 @@ def main() -> None:
                              'turns (0: the default scheduler; others need root)')
     parser.add_argument('--executors', nargs='+', default=['events'],
                         choices=('events', 'single'), help='executors to compare, taking turns')
+    parser.add_argument('--compositions', nargs='+', default=['plants'],
+                        choices=tuple(COMPOSITIONS),
+                        help='nodes sharing a process (separate: none), taking turns')
     args = parser.parse_args()
     results = []
     with tempfile.TemporaryDirectory() as scratch:
         for repeat in range(args.repeats):
             for rate in args.rates:
                 for priority in args.realtime_priorities:
-                    for executor in args.executors:
-                        folder = Path(scratch) / f'rate_{rate:g}_{priority}_{executor}_{repeat}'
-                        results.append(run(rate, args.duration, folder, priority, executor))
+                    for executor, composition in itertools.product(args.executors,
+                                                                   args.compositions):
+                        folder = Path(scratch) / (f'rate_{rate:g}_{priority}_{executor}_'
+                                                  f'{composition}_{repeat}')
+                        results.append(run(rate, args.duration, folder, priority, executor,
+                                           composition))
                         print(json.dumps(results[-1], indent=1), flush=True)
     medians = {}
-    for rate, priority, executor in itertools.product(args.rates, args.realtime_priorities,
-                                                      args.executors):
+    for rate, priority, executor, composition in itertools.product(
+            args.rates, args.realtime_priorities, args.executors, args.compositions):
         runs = [r for r in results if r['rate_hz'] == rate
-                and r['realtime_priority'] == priority and r['executor'] == executor]
-        key = f'{rate:g} Hz, {executor} executor, realtime priority {priority}'
+                and r['realtime_priority'] == priority and r['executor'] == executor
+                and r['composition'] == composition]
+        key = (f'{rate:g} Hz, {executor} executor, {composition} composed, realtime priority '
+               f'{priority}')
         medians[key] = {
             name: float(np.median([r[name] for r in runs]))
             for name in ('cpu_percent_total', 'missed_percent', 'late_percent')}
@@ -197,6 +215,7 @@ def main() -> None:
         {'machine': machine, 'medians': medians, 'runs': results}, indent=1) + '\n')
     lines = [f'bench/system.py --duration {args.duration:g} --repeats {args.repeats} '
              f'--executors {" ".join(args.executors)} '
+             f'--compositions {" ".join(args.compositions)} '
              f'--realtime-priorities {" ".join(map(str, args.realtime_priorities))}: {machine}']
     for key, median in medians.items():
         lines.append(f'{key}, median of {args.repeats}: total CPU '
@@ -206,7 +225,8 @@ def main() -> None:
     for r in results:
         ref, cmd = r['latency_ms']['reference_to_state'], r['latency_ms']['command_to_state']
         lines.append(
-            f"{r['rate_hz']:g} Hz, {r['executor']} executor, realtime priority "
+            f"{r['rate_hz']:g} Hz, {r['executor']} executor, {r['composition']} composed, "
+            f"realtime priority "
             f"{r['realtime_priority']}: total CPU "
             f"{r['cpu_percent_total']} % of one core; plants "
             f"missed {r['plant_missed_periods']}/{r['plant_periods']} ({r['missed_percent']} %), "

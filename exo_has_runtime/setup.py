@@ -29,6 +29,7 @@ setup(
             'command_talker = exo_has_runtime.demo.command_talker:main',
             'state_echo = exo_has_runtime.demo.state_echo:main',
             'recorder = exo_has_runtime.recorder:main',
+            'container = exo_has_runtime.container:main',
         ],
         'exo_has.commands': [
             'replay = exo_has_runtime.replay:main',

@@ -14,6 +14,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from rclpy.context import Context
+from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
@@ -67,8 +68,11 @@ class Observer:
         self._thread.start()
 
     def _spin(self) -> None:
-        while self.context.ok():
-            self.executor.spin_once(timeout_sec=0.05)
+        try:
+            while self.context.ok():
+                self.executor.spin_once(timeout_sec=0.05)
+        except ExternalShutdownException:
+            pass  # the context was shut down between the check and the spin: the end
         self.executor.shutdown()
 
     def _on_event(self, event: object) -> None:
@@ -85,14 +89,14 @@ class Observer:
             self.states[joint].append((time.monotonic(), state))
 
     def wait_for(self, predicate, timeout: float) -> float:
-        """Wait until predicate() is true; return the monotonic time it became so."""
+        """Wait until predicate() returns something; return that (a time, by the callers)."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             with self.lock:
                 found = predicate()
             if found is not None:
                 return found
-            time.sleep(0.005)
+            time.sleep(0.02)  # the predicates scan whole lists under the observer's lock
         msg = f'not within {timeout} s'
         raise TimeoutError(msg)
 

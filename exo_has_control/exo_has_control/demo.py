@@ -2,7 +2,8 @@
 
 Four HAS plants (or, with ``--hardware can``, the hardware driver in front of simulated CAN
 drives and sensor boards), the PD controller, the gait publisher, the safety watchdog and the
-recorder run as separate processes (no launch file) for about 20 s; the bag goes under
+recorder run as processes (no launch file; the four plants share one, see
+:data:`exo_has_control.session.COMPOSITION`) for about 20 s; the bag goes under
 ``bags/`` and a Markdown report with PNG plots next to it. The last line printed is the
 report's path.
 """

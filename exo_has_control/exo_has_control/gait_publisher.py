@@ -13,8 +13,9 @@ shape, such as CGA data), the right leg half a cycle behind the left::
 from __future__ import annotations
 
 import math
+from typing import Any
 
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
@@ -32,8 +33,10 @@ def _range(low: float, high: float) -> list[FloatingPointRange]:
 class GaitPublisher(Node):
     """Publish the schedule's joint references from the first tick on."""
 
-    def __init__(self) -> None:
-        super().__init__('gait_publisher')
+    def __init__(self, **options: Any) -> None:
+        # options: Node's keyword arguments (cli_args, context, ...), so that a container
+        # can compose this node with others in one process (exo_has_runtime.container).
+        super().__init__('gait_publisher', **options)
         declare = self.declare_parameter
         motions = list(declare('motions', ['walk'], ParameterDescriptor(
             description='trials in order: walk, squat or stand', read_only=True)).value)
@@ -64,6 +67,12 @@ class GaitPublisher(Node):
         rate = declare('rate', 200.0, ParameterDescriptor(
             description='publication rate [Hz]', read_only=True,
             floating_point_range=_range(1.0, 2000.0))).value
+        self._subscribers = declare('wait_for_subscribers', 0, ParameterDescriptor(
+            description='subscribers of joint_reference to wait for before start_delay runs '
+                        '(a session: its controller, watchdog and recorder), since a best-effort '
+                        'reference reaches only the readers discovery has matched by then',
+            read_only=True, integer_range=[IntegerRange(from_value=0, to_value=100, step=1)])
+        ).value
         if len(motions) != len(durations):
             msg = (f'motions ({len(motions)}) and durations ({len(durations)}) must have the '
                    'same length')
@@ -77,15 +86,24 @@ class GaitPublisher(Node):
         self._table = ReferenceTable(self._schedule, self._gait)
         self._publisher = self.create_publisher(JointState, JOINT_REFERENCE_TOPIC,
                                                 qos_profile_sensor_data)
-        self._start_ns = self.get_clock().now().nanoseconds + round(delay * 1e9)
+        self._delay_ns = round(delay * 1e9)
+        self._start_ns: int | None = None
         self._trial = -1
         self.create_timer(1.0 / rate, self._on_tick)
         plan = ', '.join(f'{p.motion} {p.duration:g} s' for p in self._schedule.plans)
-        self.get_logger().info(f'gait publisher ready: {plan} at {rate:g} Hz from {delay:g} s '
-                               f'on, gait data from {self._gait.source}')
+        waiting = (f'{self._subscribers} subscribers and ' if self._subscribers else '')
+        self.get_logger().info(f'gait publisher ready: {plan} at {rate:g} Hz after {waiting}'
+                               f'{delay:g} s, gait data from {self._gait.source}')
 
     def _on_tick(self) -> None:
         now = self.get_clock().now()
+        if self._start_ns is None:
+            if self._publisher.get_subscription_count() < self._subscribers:
+                return
+            if self._subscribers:
+                self.get_logger().info(f'{self._subscribers} subscribers matched: trials start '
+                                       f'in {self._delay_ns * 1e-9:g} s')
+            self._start_ns = now.nanoseconds + self._delay_ns
         if now.nanoseconds < self._start_ns:
             return
         t = (now.nanoseconds - self._start_ns) * 1e-9

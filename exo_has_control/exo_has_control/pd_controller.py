@@ -15,6 +15,7 @@ Gains are per joint type, ``hip.kp``, ``hip.kd``, ``hip.kff``, ``knee.kp`` and s
 from __future__ import annotations
 
 from functools import partial
+from typing import Any
 
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.node import Node
@@ -43,8 +44,10 @@ GAIN_RANGE = [FloatingPointRange(from_value=0.0, to_value=1.0e7)]
 class PdController(Node):
     """PD position control of the listed joints' cylinders, stopped by fatal safety events."""
 
-    def __init__(self) -> None:
-        super().__init__('pd_controller')
+    def __init__(self, **options: Any) -> None:
+        # options: Node's keyword arguments (cli_args, context, ...), so that a container
+        # can compose this node with others in one process (exo_has_runtime.container).
+        super().__init__('pd_controller', **options)
         joints = list(self.declare_parameter('joints', list(JOINT_NAMES), ParameterDescriptor(
             description=f'joints controlled, among {", ".join(JOINT_NAMES)}',
             read_only=True)).value)

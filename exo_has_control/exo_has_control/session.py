@@ -1,9 +1,10 @@
-"""An exoskeleton session without launch files: every node its own process, recorded to a bag.
+"""An exoskeleton session without launch files: its nodes as processes, recorded to a bag.
 
 :class:`Session` starts the recorder, the joints (four plant nodes; or, with ``hardware='can'``,
 the simulated CAN devices and the hardware driver in front of them), the watchdog, the PD
 controller and, last, the gait publisher (whose first reference starts the trials), each with
-:class:`~exo_has_runtime.testing.processes.NodeProcess` and its log in the session folder; it
+:class:`~exo_has_runtime.testing.processes.NodeProcess` and its log in the session folder (the
+nodes of :attr:`SessionConfig.composition` share one container process); it
 stops them in the reverse order (SIGINT, then SIGTERM, then SIGKILL), the recorder last, so the
 bag holds the whole session and is closed cleanly. The demo (``exo-has demo``) and the
 integration tests run sessions.
@@ -18,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from exo_has_driver.hardware.bus import random_multicast_group
+from exo_has_runtime.container import ComponentSpec
 from exo_has_runtime.testing.processes import NodeProcess
 from exo_has_runtime.topics import (
     DIAGNOSTICS_TOPIC,
@@ -37,6 +39,13 @@ READY_TIMEOUT = 120.0
 #: settle before the next stage starts (and the watchdog starts judging).
 SETTLE_TIME = 1.0
 
+#: Nodes a session composes into one process by default (bench/README.md, "Whole system"):
+#: the four simulated joints, as the hardware driver serves the four real ones from one
+#: process. A crash takes the four down together, as a power loss of the robot would; the
+#: watchdog, in a process of its own, sees them go stale and latches the stop.
+COMPOSITION: dict[str, tuple[str, ...]] = {
+    'plants': tuple(f'{joint}_plant' for joint in JOINT_NAMES)}
+
 #: What moves the joints: plant nodes, or simulated CAN devices behind the hardware driver.
 HARDWARE = ('plants', 'can')
 
@@ -55,7 +64,12 @@ def recorded_topics(with_loads: bool = False) -> list[str]:
 
 @dataclass(frozen=True)
 class NodeSpec:
-    """One node of a session: a name for its log, the module run, its ROS arguments."""
+    """One node of a session: a name for its log, the module run, its ROS arguments.
+
+    A node is composed with others (:mod:`exo_has_runtime.container`) through its class,
+    ``node_class``; on its own it runs as ``python -m module``, which is what ``ros2 run``
+    starts.
+    """
 
     name: str
     module: str
@@ -63,6 +77,42 @@ class NodeSpec:
     ready: str = r'ready'  # a line of its output that says it is up
     stage: int = 1  # nodes start by stage, each once the earlier stages are up
     stdin: bool = False  # a pipe to its standard input (the simulated devices' fault injection)
+    node_class: str = ''  # package.module:Class, for composition
+    members: tuple[str, ...] = ()  # the nodes a container runs (empty: just this one)
+
+
+def compose(specs: list[NodeSpec], name: str, members: tuple[str, ...]) -> list[NodeSpec]:
+    """Replace the nodes named ``members`` by one container process called ``name``.
+
+    The container starts at the earliest stage of its members and is ready once every member
+    has said so.
+
+    Raises
+    ------
+    ValueError
+        If a member is not among the specs or cannot be composed.
+
+    """
+    by_name = {spec.name: spec for spec in specs}
+    missing = [member for member in members if member not in by_name]
+    if missing:
+        msg = f'cannot compose {", ".join(missing)}: no such node in the session'
+        raise ValueError(msg)
+    parts = [by_name[member] for member in members]
+    for part in parts:
+        if not part.node_class or part.stdin:
+            msg = f'cannot compose {part.name}: it is not a node class'
+            raise ValueError(msg)
+    arguments = [token for part in parts
+                 for token in ComponentSpec(part.node_class, part.arguments).command_line()]
+    # Every member's ready line, in any order.
+    ready = '(?s)' + ''.join(f'(?=.*{part.ready})' for part in parts)
+    container = NodeSpec(name, 'exo_has_runtime.container', tuple(arguments), ready=ready,
+                         stage=min(part.stage for part in parts), members=members)
+    first = specs.index(parts[0])
+    rest = [spec for spec in specs if spec.name not in members]
+    rest.insert(min(first, len(rest)), container)
+    return rest
 
 
 @dataclass(frozen=True)
@@ -82,8 +132,8 @@ class SessionConfig:
     plant_arguments : dict
         Extra ROS arguments per joint's plant (e.g. ``-p load_force:=...``).
     start_delay : float
-        Time from the gait publisher's start to its first reference [s], for the recorder and
-        the controller to subscribe.
+        Time from the moment the gait publisher's readers (controller, watchdog, recorder)
+        have matched to its first reference [s]: the nodes settle at standing first.
     load_mass : dict
         Mass [kg] each joint type's default load is derived for. Hips: the paper's 50 kg design
         case (310 N; much lighter hip loads chatter the compact valve and spike the pressure).
@@ -102,6 +152,11 @@ class SessionConfig:
     realtime_priority : int
         SCHED_FIFO priority of the plants' loops, or of the driver's I/O thread (0: the
         default scheduler; see exo_has_runtime.realtime).
+    composition : dict or None
+        Nodes composed into one process (:mod:`exo_has_runtime.container`), as process name:
+        node names; every other node runs in its own process. None: :data:`COMPOSITION`, the
+        four plants in one process with the plant hardware (``{}``: every node its own
+        process).
 
     """
 
@@ -117,6 +172,7 @@ class SessionConfig:
     hardware: str = 'plants'
     can_channel: str = ''
     realtime_priority: int = 0
+    composition: dict[str, tuple[str, ...]] | None = None
 
     def __post_init__(self) -> None:
         if self.hardware not in HARDWARE:
@@ -136,7 +192,7 @@ def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
         topics = ','.join(f"'{t}'" for t in recorded_topics(config.loads))
         specs.append(NodeSpec('recorder', 'exo_has_runtime.recorder', (
             '--ros-args', '-p', f'output:={bag}', '-p', f'topics:=[{topics}]'),
-            ready=r'recording', stage=0))
+            ready=r'recording', stage=0, node_class='exo_has_runtime.recorder:Recorder'))
     if config.hardware == 'can':
         channel = config.can_channel or random_multicast_group()
         specs.append(NodeSpec('can_devices', 'exo_has_driver.devices.main', (
@@ -147,7 +203,7 @@ def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
         specs.append(NodeSpec('driver', 'exo_has_driver.driver_node', (
             '--ros-args', '-p', 'interface:=udp_multicast', '-p', f'channel:={channel}',
             '-p', f'rate:={config.rate}', '-p', f'realtime_priority:={config.realtime_priority}'),
-            ready=r'driver ready', stage=2))
+            ready=r'driver ready', stage=2, node_class='exo_has_driver.driver_node:Driver'))
     else:
         for joint in JOINT_NAMES:
             specs.append(NodeSpec(f'{joint}_plant', 'exo_has_sim.plant_node', (
@@ -156,18 +212,29 @@ def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
                 '-p', f'load_mass:={config.load_mass[joint_type_of(joint)]}',
                 '-p', f'realtime_priority:={config.realtime_priority}',
                 *config.plant_arguments.get(joint, ())),
-                ready=r'plant ready'))
+                ready=rf'{joint} plant ready', node_class='exo_has_sim.plant_node:PlantNode'))
     specs.append(NodeSpec('pd_controller', 'exo_has_control.pd_controller', (),
-                          ready=r'controller ready'))
+                          ready=r'controller ready',
+                          node_class='exo_has_control.pd_controller:PdController'))
     specs.append(NodeSpec('watchdog', 'exo_has_driver.watchdog', (
         '--ros-args', '-p', f'rate:={config.rate}', '-p', f'control_rate:={config.rate}',
-        '-p', f'stale_periods:={config.stale_periods}'), stage=3))
+        '-p', f'stale_periods:={config.stale_periods}'), stage=3,
+        node_class='exo_has_driver.watchdog:Watchdog'))
+    # The controller, the watchdog and the recorder take the references.
+    reference_readers = 2 + int(config.record and bag is not None)
     motions = ','.join(f"'{m}'" for m in config.motions)
     durations = ','.join(f'{float(d)}' for d in config.durations)
     specs.append(NodeSpec('gait_publisher', 'exo_has_control.gait_publisher', (
         '--ros-args', '-p', f'motions:=[{motions}]', '-p', f'durations:=[{durations}]',
-        '-p', f'rate:={config.rate}', '-p', f'start_delay:={config.start_delay}'),
-        ready=r'gait publisher ready', stage=4))
+        '-p', f'rate:={config.rate}', '-p', f'start_delay:={config.start_delay}',
+        '-p', f'wait_for_subscribers:={reference_readers}'),
+        ready=r'gait publisher ready', stage=4,
+        node_class='exo_has_control.gait_publisher:GaitPublisher'))
+    composition = config.composition
+    if composition is None:
+        composition = COMPOSITION if config.hardware == 'plants' else {}
+    for name, members in composition.items():
+        specs = compose(specs, name, members)
     return specs
 
 
@@ -193,7 +260,8 @@ class Session:
         self.logs = self.folder / 'logs'
         self.env = env or {}
         self.processes: dict[str, NodeProcess] = {}
-        self.started_at: float | None = None  # monotonic time the gait publisher came up
+        self.specs: dict[str, NodeSpec] = {}
+        self.started_at: float | None = None  # monotonic time the first trial starts
 
     def start(self, show: Callable[[str], None] = print) -> None:
         """Start every node in order, each once the ones before are ready.
@@ -206,6 +274,7 @@ class Session:
         """
         self.logs.mkdir(parents=True, exist_ok=True)
         specs = node_specs(self.config, self.bag)
+        self.specs = {spec.name: spec for spec in specs}
         # The recorder first (it reports once it has subscribed), then the plants and the
         # controller, the watchdog once there is something to watch, and the gait publisher
         # last: the trials start when everything is up and the recorder has subscribed to
@@ -225,6 +294,8 @@ class Session:
                 # At least the session's own topics (load topics come when someone publishes,
                 # and the count rises by as many as discovery found at once).
                 self._wait_for_recording(len(recorded_topics()))
+            # The gait publisher's start delay runs once its readers have matched.
+            self.process_of('gait_publisher').wait_for_output(r'trials start in', READY_TIMEOUT)
             self.started_at = time.monotonic() + self.config.start_delay
         except BaseException:
             self.stop()
@@ -279,7 +350,22 @@ class Session:
             codes[name] = self.processes[name].stop()
         return codes
 
-    def output(self, name: str) -> str:
-        """Everything a node wrote so far."""
-        return self.processes[name].output
+    def process_of(self, node: str) -> NodeProcess:
+        """Return the process that runs a node (its own, or its container).
+
+        Raises
+        ------
+        KeyError
+            If no process of the session runs that node.
+
+        """
+        for name, spec in self.specs.items():
+            if node == name or node in spec.members:
+                return self.processes[name]
+        msg = f'no process of this session runs a node {node!r}'
+        raise KeyError(msg)
+
+    def output(self, node: str) -> str:
+        """Everything the process of a node wrote so far."""
+        return self.process_of(node).output
 

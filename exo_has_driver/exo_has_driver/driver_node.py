@@ -41,6 +41,7 @@ import math
 import sys
 import time
 from functools import partial
+from typing import Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
@@ -140,8 +141,10 @@ def _integers(low: int, high: int) -> list[IntegerRange]:
 class Driver(Node):
     """The HAS hardware driver: CANopen master of the joints' drives and sensor boards."""
 
-    def __init__(self) -> None:
-        super().__init__('driver')
+    def __init__(self, **options: Any) -> None:
+        # options: Node's keyword arguments (cli_args, context, ...), so that a container
+        # can compose this node with others in one process (exo_has_runtime.container).
+        super().__init__('driver', **options)
         declare = self.declare_parameter
 
         def read_only(description: str, **ranges: object) -> ParameterDescriptor:

@@ -20,6 +20,7 @@ is latched, stop commands (motor speed 0, drive disabled) on every joint's ``has
 from __future__ import annotations
 
 from functools import partial
+from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
@@ -58,8 +59,10 @@ def _floats(low: float, high: float) -> list[FloatingPointRange]:
 class Watchdog(Node):
     """Safety watchdog of the HAS joints: events, diagnostics and stop commands."""
 
-    def __init__(self) -> None:
-        super().__init__('watchdog')
+    def __init__(self, **options: Any) -> None:
+        # options: Node's keyword arguments (cli_args, context, ...), so that a container
+        # can compose this node with others in one process (exo_has_runtime.container).
+        super().__init__('watchdog', **options)
         declare = self.declare_parameter
         # An empty list (joints:=[]) has no type in rcl and reads None: checked_joints says so.
         joints = list(declare('joints', list(JOINT_NAMES), ParameterDescriptor(

@@ -25,6 +25,10 @@ class CommandLineError(RuntimeSeamError, ValueError):
     """Malformed ROS command-line arguments or parameters file."""
 
 
+class ContainerArgumentError(CommandLineError):
+    """A container command line that names no node, or a node class that cannot be found."""
+
+
 class BagError(RuntimeSeamError):
     """A bag that cannot be written, read or recovered."""
 

@@ -43,8 +43,10 @@ from exo_has_runtime.recording import (
 class Recorder(Node):
     """Subscribe to the topics of the graph (or the given ones) and write them to a bag."""
 
-    def __init__(self) -> None:
-        super().__init__('recorder')
+    def __init__(self, **options: Any) -> None:
+        # options: Node's keyword arguments (cli_args, context, ...), so that a container
+        # can compose this node with others in one process (exo_has_runtime.container).
+        super().__init__('recorder', **options)
         self.declare_parameter('output', '', ParameterDescriptor(
             description='bag directory to create; empty: '
                         '~/.ros/exo_has_bags/session_<YYYYmmdd_HHMMSS>'))

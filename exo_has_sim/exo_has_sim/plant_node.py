@@ -10,6 +10,7 @@ the HasState with the valve mode. Run one per joint::
 from __future__ import annotations
 
 import math
+from typing import Any
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
@@ -35,8 +36,10 @@ from exo_has_sim.plant import Plant, joint_type_of
 class PlantNode(Node):
     """A simulated HAS joint: HasCommand and load in, HasState out."""
 
-    def __init__(self) -> None:
-        super().__init__('has_plant')
+    def __init__(self, **options: Any) -> None:
+        # options: Node's keyword arguments (cli_args, context, ...), so that a container
+        # can compose this node with others in one process (exo_has_runtime.container).
+        super().__init__('has_plant', **options)
         joint = self.declare_parameter('joint', '', ParameterDescriptor(
             description=f'joint simulated: one of {", ".join(JOINT_NAMES)}',
             read_only=True)).value

@@ -1,0 +1,71 @@
+"""What a session runs: its processes, and the nodes composed into one."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from exo_has_control.session import COMPOSITION, SessionConfig, compose, node_specs
+from exo_has_runtime.container import split_arguments
+from exo_has_runtime.topics import JOINT_NAMES
+
+PLANTS = tuple(f'{joint}_plant' for joint in JOINT_NAMES)
+
+
+def test_by_default_the_four_plants_share_one_container_and_the_rest_run_alone():
+    specs = node_specs(SessionConfig(), Path('bag'))
+    assert [spec.name for spec in specs] == [
+        'recorder', 'plants', 'pd_controller', 'watchdog', 'gait_publisher']
+    plants = specs[1]
+    assert plants.module == 'exo_has_runtime.container'
+    assert plants.members == PLANTS == COMPOSITION['plants']
+    _, components = split_arguments(plants.arguments)
+    assert [c.target for c in components] == ['exo_has_sim.plant_node:PlantNode'] * 4
+    # Each plant keeps its own node name and joint.
+    for joint, component in zip(JOINT_NAMES, components, strict=True):
+        assert f'__node:={joint}_plant' in component.arguments
+        assert f'joint:={joint}' in component.arguments
+
+
+def test_an_empty_composition_runs_every_node_in_its_own_process():
+    specs = node_specs(SessionConfig(composition={}), Path('bag'))
+    assert [spec.name for spec in specs] == [
+        'recorder', *PLANTS, 'pd_controller', 'watchdog', 'gait_publisher']
+    assert all(spec.module != 'exo_has_runtime.container' for spec in specs)
+
+
+def test_the_can_hardware_composes_nothing_by_default():
+    specs = node_specs(SessionConfig(hardware='can'), Path('bag'))
+    assert 'plants' not in [spec.name for spec in specs]
+
+
+def test_a_container_is_ready_only_once_every_member_said_so_in_any_order():
+    specs = node_specs(SessionConfig(), None)
+    ready = next(spec for spec in specs if spec.name == 'plants').ready
+    lines = [f'[INFO] [{joint}_plant]: {joint} plant ready (...)' for joint in JOINT_NAMES]
+    assert re.search(ready, '\n'.join(reversed(lines)))
+    assert not re.search(ready, '\n'.join(lines[:3]))
+
+
+def test_a_container_starts_with_its_earliest_member():
+    specs = node_specs(SessionConfig(), None)
+    composed = compose(specs, 'control', ('pd_controller', 'gait_publisher'))
+    control = next(spec for spec in composed if spec.name == 'control')
+    assert control.stage == 1  # the controller's stage; the gait publisher's is 4
+
+
+@pytest.mark.parametrize(('members', 'wording'), [
+    (('pd_controller', 'no_such_node'), 'no_such_node: no such node'),
+    (('can_devices',), 'no such node'),
+])
+def test_composing_an_unknown_node_is_refused_by_name(members, wording):
+    with pytest.raises(ValueError, match=wording):
+        compose(node_specs(SessionConfig(), None), 'x', members)
+
+
+def test_the_simulated_can_devices_cannot_be_composed():
+    specs = node_specs(SessionConfig(hardware='can'), None)
+    with pytest.raises(ValueError, match='can_devices: it is not a node class'):
+        compose(specs, 'x', ('can_devices', 'driver'))
