@@ -12,8 +12,8 @@ component container hands each component its ``NodeOptions`` arguments::
 
 ROS arguments before the first ``--node`` are global: every node sees them (``use_sim_time``,
 a log level). The nodes share one context, so one DDS participant, and one executor thread
-(:func:`exo_has_runtime.execution.run_nodes`): messages between them stay in the process
-(Fast DDS delivers them without a transport), and their callbacks never run at the same time.
+(:func:`exo_has_runtime.execution.run_nodes`): their callbacks never run at the same time,
+and one process's fixed costs (interpreter, DDS threads) are paid once.
 A node class takes Node's keyword arguments (``cli_args``, ``context``) for this.
 """
 

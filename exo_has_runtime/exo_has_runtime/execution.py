@@ -1,10 +1,10 @@
 """How every exo_has node is spun and started: one executor choice and one ``main()``.
 
 The executor was chosen by measurement (bench/README.md): rclpy 7.1.6's
-``SingleThreadedExecutor`` costs about 300 us of Python per callback, so eight processes at
-200 Hz outgrow this machine's two cores; ``rclpy.experimental.EventsExecutor`` (C++) costs
-about a quarter of that. Two defects of that release shape how it is used here, and
-:mod:`exo_has_runtime.test.test_execution` fails if either changes:
+``SingleThreadedExecutor`` costs about 300 us of Python per callback, and a session on it
+saturates this machine's two cores; on ``rclpy.experimental.EventsExecutor`` (C++) a plant
+and its client take 0.4 to 0.6 of that CPU. Two defects of that release shape how it is used
+here, and :mod:`exo_has_runtime.test.test_execution` fails if either changes:
 
 - ``EventsExecutor.spin()`` never returns on SIGINT or SIGTERM while a timer runs (its C++
   loop does not see rclpy's signal handler shut the context down), whereas ``spin_once`` does

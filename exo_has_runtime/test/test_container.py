@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import signal
 import subprocess
 import sys
 import tempfile
@@ -12,6 +11,7 @@ import pytest
 
 from exo_has_runtime.container import ComponentSpec, node_class, split_arguments
 from exo_has_runtime.errors import ContainerArgumentError
+from exo_has_runtime.testing.processes import NodeProcess
 
 
 def test_arguments_before_the_first_node_are_global_and_each_node_keeps_its_own():
@@ -76,29 +76,21 @@ def test_two_composed_plants_each_take_their_own_parameters_and_stop_cleanly(ros
                                  qos_profile_sensor_data)
     executor = SingleThreadedExecutor(context=ros_context)
     executor.add_node(node)
-    command = [sys.executable, '-m', 'exo_has_runtime.container']
+    arguments: list[str] = []
     for joint in states:
-        command += ['--node', 'exo_has_sim.plant_node:PlantNode', '--ros-args',
-                    '-r', f'__node:={joint}_plant', '-p', f'joint:={joint}']
-    with tempfile.TemporaryFile() as log:
-        process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT,
-                                   cwd=tempfile.gettempdir())
-        try:
-            deadline = time.monotonic() + 60.0  # the first start compiles the model
-            while (not all(states.values()) and time.monotonic() < deadline
-                   and process.poll() is None):
-                executor.spin_once(timeout_sec=0.1)
-        finally:
-            process.send_signal(signal.SIGINT)
-            try:
-                code = process.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                code = process.wait()
-            executor.shutdown()
-            node.destroy_node()
-        log.seek(0)
-        output = log.read().decode('utf-8', errors='replace')
+        arguments += ['--node', 'exo_has_sim.plant_node:PlantNode', '--ros-args',
+                      '-r', f'__node:={joint}_plant', '-p', f'joint:={joint}']
+    container = NodeProcess('exo_has_runtime.container', arguments)
+    try:
+        deadline = time.monotonic() + 60.0  # the first start compiles the model
+        while (not all(states.values()) and time.monotonic() < deadline
+               and container.process.poll() is None):
+            executor.spin_once(timeout_sec=0.1)
+    finally:
+        code = container.stop(timeout_s=10.0)
+        executor.shutdown()
+        node.destroy_node()
+    output = container.output
     assert all(states.values()), f'not every plant published; the output:\n{output}'
     assert {s.joint for s in states['left_hip']} == {'left_hip'}
     assert {s.joint for s in states['right_knee']} == {'right_knee'}
