@@ -3,6 +3,8 @@
 import time
 from pathlib import Path
 
+import pytest
+
 from exo_has_runtime.testing.processes import NodeProcess
 
 PEERS = 'exo_has_runtime.testing.peers'
@@ -29,30 +31,24 @@ def test_an_unknown_type_name_fails_that_process_with_a_clear_error():
         assert 'Traceback' not in peer.output
 
 
-def test_a_wrongly_typed_parameter_fails_the_node_naming_the_parameter():
-    with NodeProcess('exo_has_runtime.demo.command_talker',
-                     ['--ros-args', '-p', 'rate:=200']) as talker:
-        assert talker.wait(timeout_s=10) == 1
-        assert ("cannot start: Trying to set parameter 'rate' to '200' of type 'INTEGER', "
-                "expecting type 'DOUBLE'") in talker.output
-        assert 'Traceback' not in talker.output
-
-
-def test_a_parameter_out_of_its_range_fails_the_node_naming_the_range():
-    with NodeProcess('exo_has_sim.plant_node',
-                     ['--ros-args', '-p', 'joint:=left_hip', '-p', 'rate:=5000.0']) as plant:
-        assert plant.wait(timeout_s=60) == 1
-        assert 'Parameter rate out of range Min: 1.0, Max: 2000.0, value: 5000.0' in plant.output
-        assert 'Traceback' not in plant.output
-
-
-def test_an_unknown_joint_fails_the_plant_naming_the_joints_it_knows():
-    with NodeProcess('exo_has_sim.plant_node',
-                     ['--ros-args', '-p', 'joint:=left_ankle']) as plant:
-        assert plant.wait(timeout_s=60) == 1
-        assert ("cannot start: unknown joint 'left_ankle': expected one of left_hip, left_knee, "
-                'right_hip, right_knee') in plant.output
-        assert 'Traceback' not in plant.output
+@pytest.mark.parametrize(('module', 'arguments', 'message'), [
+    pytest.param('exo_has_runtime.demo.command_talker', ['-p', 'rate:=200'],
+                 "cannot start: Trying to set parameter 'rate' to '200' of type 'INTEGER', "
+                 "expecting type 'DOUBLE'", id='a wrongly typed parameter'),
+    pytest.param('exo_has_sim.plant_node', ['-p', 'joint:=left_hip', '-p', 'rate:=5000.0'],
+                 'Parameter rate out of range Min: 1.0, Max: 2000.0, value: 5000.0',
+                 id='a parameter out of its range'),
+    pytest.param('exo_has_sim.plant_node', ['-p', 'joint:=left_ankle'],
+                 "cannot start: unknown joint 'left_ankle': expected one of left_hip, "
+                 'left_knee, right_hip, right_knee', id='an unknown joint'),
+])
+def test_a_bad_configuration_fails_the_node_with_one_line_naming_the_problem(
+        module, arguments, message):
+    # 60 s: a plant's first start compiles the model.
+    with NodeProcess(module, ['--ros-args', *arguments]) as node:
+        assert node.wait(timeout_s=60) == 1
+        assert message in node.output
+        assert 'Traceback' not in node.output
 
 
 def test_a_malformed_params_file_fails_the_node_naming_the_file(tmp_path: Path):
