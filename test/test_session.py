@@ -28,7 +28,7 @@ HIP_SQUAT_BAND = (-2.5, 3.5)  # deg: the paper's -1.5/+2.5 deg, widened 1 deg fo
 HIP_WALK_PEAK = 5.0  # deg
 KNEE_PEAK = 25.0  # deg
 STOP_BOUND = 0.25  # s: overload to every joint commanded to stop (10 control periods + relief)
-STALE_BOUND = 0.5  # s: plant killed to the stale-state event (stale after 50 ms + scheduling)
+STALE_BOUND = 0.8  # s: plants killed to the stale-state event (stale after 500 ms + scheduling)
 
 
 @pytest.fixture(scope='module')

@@ -140,8 +140,10 @@ class SessionConfig:
         Knees: 25 kg, the load of the paper's tracking tests (section 5.2), since the 50 kg
         design case (1155 N) drives the knees to the 18 MPa relief at the peaks of walking.
     stale_periods : int
-        Control periods without a state or command before the watchdog stops everything: 40
-        (200 ms at 200 Hz): eleven Python processes on two shared cores see gaps over 100 ms.
+        Control periods without a state or command before the watchdog stops everything: 100
+        (500 ms at 200 Hz). On rclpy 7.1.6 with Fast DDS a node process here stands still for
+        about 0.2 to 0.35 s now and then (bench/README.md, "Stalls"; issue 11): at 40 periods
+        one demo session in ten stopped on such a stall.
     hardware : str
         ``'plants'``: one plant node per joint. ``'can'``: the hardware driver on a simulated
         CAN bus (python-can's udp_multicast) with the simulated drives and sensor boards of
@@ -167,7 +169,7 @@ class SessionConfig:
     loads: bool = False
     plant_arguments: dict[str, tuple[str, ...]] = field(default_factory=dict)
     start_delay: float = 2.0
-    stale_periods: int = 40
+    stale_periods: int = 100
     load_mass: dict[str, float] = field(default_factory=lambda: {'hip': 50.0, 'knee': 25.0})
     hardware: str = 'plants'
     can_channel: str = ''
