@@ -38,7 +38,7 @@ from exo_has_runtime.topics import (
 class Observer:
     """A node in the test process: watches events and commands, publishes loads and resets."""
 
-    def __init__(self) -> None:
+    def __init__(self, states: bool = True) -> None:
         self.context = Context()
         self.context.init(['observer'])
         self.node = Node('test_observer', context=self.context)
@@ -52,9 +52,10 @@ class Observer:
             self.node.create_subscription(
                 HasCommand, has_command_topic(joint),
                 lambda c, j=joint: self._on_command(j, c), qos_profile_sensor_data)
-            self.node.create_subscription(
-                HasState, has_state_topic(joint),
-                lambda m, j=joint: self._on_state(j, m), qos_profile_sensor_data)
+            if states:  # 800 messages a second into this process: only where a test reads them
+                self.node.create_subscription(
+                    HasState, has_state_topic(joint),
+                    lambda m, j=joint: self._on_state(j, m), qos_profile_sensor_data)
         self.float64 = Float64
         self.loads = {j: self.node.create_publisher(Float64, load_force_topic(j), 10)
                       for j in JOINT_NAMES}
@@ -107,11 +108,15 @@ class Observer:
 
 
 @contextmanager
-def observed_session(config: SessionConfig, folder: Path) -> Iterator[tuple[Session, Observer]]:
-    """Start a session and an observer, run the trials to their end, stop both on leaving."""
+def observed_session(config: SessionConfig, folder: Path,
+                     states: bool = True) -> Iterator[tuple[Session, Observer]]:
+    """Start a session and an observer, run the trials to their end, stop both on leaving.
+
+    ``states``: whether the observer takes the HAS states too (not only commands and events).
+    """
     running = Session(config, folder)
     running.start(show=lambda line: None)
-    observer = Observer()
+    observer = Observer(states)
     try:
         running.run(show=lambda line: None, extra=1.0)
         yield running, observer
