@@ -19,14 +19,12 @@ import random
 import tempfile
 from pathlib import Path
 
-import numpy as np
-
 os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(100, 200)))
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 
 from common import describe_machine
 
-from exo_has_control.analysis import read_session, tracking
+from exo_has_control.analysis import rates, read_session, tracking
 from exo_has_control.demo import run
 from exo_has_control.report import segments_of
 from exo_has_control.session import SessionConfig
@@ -36,21 +34,17 @@ RESULTS = Path(__file__).resolve().parent / 'results'
 ERROR = 2  # SafetyEvent severity: ERROR and FATAL count
 
 
-def rate_hz(stamps: np.ndarray) -> float:
-    """Mean rate of a series of stamps [s], in Hz."""
-    return float((stamps.size - 1) / (stamps[-1] - stamps[0])) if stamps.size > 1 else 0.0
-
-
 def session_figures(config: SessionConfig, folder: Path) -> dict[str, object]:
     """Run one demo session into folder; its events, rates and tracking peaks."""
     run(config, folder)
     data = read_session(folder / 'bag')
     rows = tracking(data, segments_of(config.motions, config.durations))
+    rate = rates(data)
     return {
         'events': [e.text for e in data.events if e.severity >= ERROR],
-        'state_rate_hz': {joint: round(rate_hz(np.asarray(data.states[joint]['t'])), 2)
+        'state_rate_hz': {joint: round(rate.get(f'/{joint}/has_state', 0.0), 2)
                           for joint in JOINT_NAMES},
-        'command_rate_hz': {joint: round(rate_hz(np.asarray(data.commands[joint]['t'])), 2)
+        'command_rate_hz': {joint: round(rate.get(f'/{joint}/has_command', 0.0), 2)
                             for joint in JOINT_NAMES},
         'tracking_peak_deg': {f'{r.joint} {r.segment}': round(r.peak, 2) for r in rows},
     }

@@ -15,7 +15,7 @@ import time
 import pytest
 from session_observer import Observer, observed_session, read_so_far
 
-from exo_has_control.analysis import tracking
+from exo_has_control.analysis import rates, tracking
 from exo_has_control.report import segments_of
 from exo_has_control.session import Session, SessionConfig
 from exo_has_runtime.topics import JOINT_NAMES
@@ -75,9 +75,9 @@ def test_walking_and_squatting_through_the_driver_raise_no_fatal_event(recorded)
 
 
 def test_the_driver_publishes_every_joints_state_at_the_sync_rate(recorded):
+    measured = rates(recorded)
     for joint in JOINT_NAMES:
-        t = recorded.states[joint]['t']
-        rate = (len(t) - 1) / (t[-1] - t[0])
+        rate = measured[f'/{joint}/has_state']
         assert rate == pytest.approx(RATE, rel=0.05), (joint, rate)
 
 

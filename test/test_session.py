@@ -13,12 +13,12 @@ from pathlib import Path
 import pytest
 from session_observer import observed_session, read_so_far
 
-from exo_has_control.analysis import tracking
+from exo_has_control.analysis import rates, tracking
 from exo_has_control.report import segments_of, write_report
 from exo_has_control.session import SessionConfig, recorded_topics
 from exo_has_runtime.bag import bag_topics, read_messages, recover_bag
 from exo_has_runtime.testing.processes import NodeProcess
-from exo_has_runtime.topics import JOINT_NAMES
+from exo_has_runtime.topics import JOINT_NAMES, JOINT_REFERENCE_TOPIC
 
 MOTIONS, DURATIONS = ('walk', 'squat'), (8.0, 8.0)
 RATE = 200.0
@@ -69,13 +69,10 @@ def test_the_bag_holds_every_topic_at_its_expected_rate(recorded, session, tmp_p
     declared = {topic.topic for topic in bag_topics(tmp_path / 'copy')}
     expected = set(recorded_topics(with_loads=False))
     assert expected <= declared, expected - declared
-    for joint in JOINT_NAMES:
-        for table in (recorded.states, recorded.commands):
-            t = table[joint]['t']
-            rate = (len(t) - 1) / (t[-1] - t[0])
-            assert rate == pytest.approx(RATE, rel=0.05), (joint, rate)
-    span = recorded.reference_t[-1] - recorded.reference_t[0]
-    assert (len(recorded.reference_t) - 1) / span == pytest.approx(RATE, rel=0.05)
+    measured = rates(recorded)
+    for topic in [f'/{joint}/{kind}' for joint in JOINT_NAMES
+                  for kind in ('has_state', 'has_command')] + [f'/{JOINT_REFERENCE_TOPIC}']:
+        assert measured[topic] == pytest.approx(RATE, rel=0.05), (topic, measured[topic])
     assert recorded.counts['/diagnostics'] >= sum(DURATIONS) * 0.8  # 1 Hz
 
 

@@ -109,9 +109,10 @@ def compose(specs: list[NodeSpec], name: str, members: tuple[str, ...]) -> list[
     ready = '(?s)' + ''.join(f'(?=.*{part.ready})' for part in parts)
     container = NodeSpec(name, 'exo_has_runtime.container', tuple(arguments), ready=ready,
                          stage=min(part.stage for part in parts), members=members)
-    first = specs.index(parts[0])
+    # In the place of the earliest member: every spec before it stays before it.
+    position = min(specs.index(part) for part in parts)
     rest = [spec for spec in specs if spec.name not in members]
-    rest.insert(min(first, len(rest)), container)
+    rest.insert(position, container)
     return rest
 
 
