@@ -1,7 +1,8 @@
-"""What the benchmarks share: CPU time from /proc, the machine, a session's CPU shares."""
+"""What the benchmarks share: CPU time, the machine, a session's CPU shares, the results."""
 
 from __future__ import annotations
 
+import json
 import os
 import platform
 import time
@@ -12,6 +13,9 @@ if TYPE_CHECKING:  # the scripts choose the backend before they import the sessi
     from exo_has_control.session import Session
 
 TICK = os.sysconf('SC_CLK_TCK')
+
+#: Where each benchmark writes ``<name>.json`` and ``<name>.txt``.
+RESULTS = Path(__file__).resolve().parent / 'results'
 
 
 def cpu_seconds(pid: int) -> float:
@@ -41,3 +45,12 @@ def trial_cpu_shares(session: Session, duration: float) -> dict[str, float]:
     after = {name: cpu_seconds(p.process.pid) for name, p in session.processes.items()}
     time.sleep(max(0.0, session.started_at + duration + 0.5 - time.monotonic()))
     return {name: 100.0 * (after[name] - before[name]) / span for name in before}
+
+
+def write_results(name: str, data: dict[str, object], lines: list[str]) -> None:
+    """Write a benchmark's data (with the machine) and printout under results/, and print it."""
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / f'{name}.json').write_text(
+        json.dumps({'machine': describe_machine(), **data}, indent=1) + '\n')
+    (RESULTS / f'{name}.txt').write_text('\n'.join(lines) + '\n')
+    print('\n'.join(lines))

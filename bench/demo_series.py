@@ -22,7 +22,7 @@ from pathlib import Path
 os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(100, 200)))
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 
-from common import describe_machine
+from common import describe_machine, write_results
 
 from exo_has_control.analysis import rates, read_session, tracking
 from exo_has_control.demo import run
@@ -30,7 +30,6 @@ from exo_has_control.report import segments_of
 from exo_has_control.session import SessionConfig
 from exo_has_runtime.topics import JOINT_NAMES
 
-RESULTS = Path(__file__).resolve().parent / 'results'
 ERROR = 2  # SafetyEvent severity: ERROR and FATAL count
 
 
@@ -72,11 +71,7 @@ def main() -> None:
                      f'{max(commands.values())} Hz; tracking peaks {r["tracking_peak_deg"]}')
     clean = sum(1 for r in results if not r['events'])
     lines.append(f'{clean} of {len(results)} sessions without an ERROR or FATAL event')
-    RESULTS.mkdir(exist_ok=True)
-    (RESULTS / 'demo_series.json').write_text(json.dumps(
-        {'machine': describe_machine(), 'sessions': results}, indent=1) + '\n')
-    (RESULTS / 'demo_series.txt').write_text('\n'.join(lines) + '\n')
-    print('\n'.join(lines))
+    write_results('demo_series', {'sessions': results}, lines)
 
 
 if __name__ == '__main__':

@@ -21,9 +21,8 @@ import threading
 import time
 from pathlib import Path
 
-from common import describe_machine
+from common import describe_machine, write_results
 
-RESULTS = Path(__file__).resolve().parent / 'results'
 JOINTS = ('left_hip', 'left_knee', 'right_hip', 'right_knee')
 WARM_UP_S, WINDOW_S = 4.0, 10.0
 
@@ -103,11 +102,7 @@ def main() -> None:
         lines.append(f'{"raw" if raw else "typed"} subscription, median of {len(chosen)}: '
                      f'receive {median["receive_us"]} us, publish {median["publish_us"]} us '
                      f'per message (runs: {chosen})')
-    RESULTS.mkdir(exist_ok=True)
-    (RESULTS / 'message_cost.json').write_text(json.dumps(
-        {'machine': describe_machine(), 'runs': runs}, indent=1) + '\n')
-    (RESULTS / 'message_cost.txt').write_text('\n'.join(lines) + '\n')
-    print('\n'.join(lines))
+    write_results('message_cost', {'runs': runs}, lines)
 
 
 if __name__ == '__main__':

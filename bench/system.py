@@ -41,13 +41,13 @@ import numpy as np
 os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(100, 200)))
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 
-from common import describe_machine, trial_cpu_shares
+from common import describe_machine, trial_cpu_shares, write_results
 
 from exo_has_control.analysis import read_session
 from exo_has_control.session import COMPOSITION, Session, SessionConfig
 from exo_has_runtime.topics import JOINT_NAMES
 
-RESULTS = Path(__file__).resolve().parent / 'results'
+
 def latencies(bag: Path) -> tuple[np.ndarray, np.ndarray, int]:
     """Latencies of the commands the plants applied, and how many were never applied.
 
@@ -210,9 +210,6 @@ def main() -> None:
         medians[key]['probe_missed_percent'] = float(
             np.median([r['probe']['missed_percent'] for r in runs]))
     machine = describe_machine()
-    RESULTS.mkdir(exist_ok=True)
-    (RESULTS / 'system.json').write_text(json.dumps(
-        {'machine': machine, 'medians': medians, 'runs': results}, indent=1) + '\n')
     lines = [f'bench/system.py --duration {args.duration:g} --repeats {args.repeats} '
              f'--executors {" ".join(args.executors)} '
              f'--compositions {" ".join(args.compositions)} '
@@ -237,8 +234,7 @@ def main() -> None:
             f"{ref['p99']} ms, command-to-state p50 {cmd['p50']} ms p99 {cmd['p99']} ms, "
             f"{r['latency_ms']['superseded_commands']} commands superseded; fatal events "
             f"{r['fatal_events']}; per node {r['cpu_percent_of_one_core']}")
-    (RESULTS / 'system.txt').write_text('\n'.join(lines) + '\n')
-    print('\n'.join(lines))
+    write_results('system', {'medians': medians, 'runs': results}, lines)
 
 
 if __name__ == '__main__':
