@@ -11,6 +11,7 @@ report's path.
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import time
 from collections.abc import Sequence
@@ -18,8 +19,15 @@ from datetime import datetime
 from pathlib import Path
 
 from exo_has_control.analysis import read_session
+from exo_has_control.errors import DomainInUseError
 from exo_has_control.report import write_report
-from exo_has_control.session import Session, SessionConfig
+from exo_has_control.session import (
+    Session,
+    SessionConfig,
+    SessionInterrupted,
+    interrupt_on_signals,
+    refuse_if_occupied,
+)
 
 
 def warm_up() -> float:
@@ -39,6 +47,7 @@ def run(config: SessionConfig, folder: Path) -> Path:
               else 'four plant nodes')
     print(f'exo-has demo: {trials} at {config.rate:g} Hz, {joints}, into {folder}', flush=True)
     print(f'plant model ready in {warm_up():.1f} s (compiled once, then cached)', flush=True)
+    refuse_if_occupied(config)
     session = Session(config, folder)
     session.start(show=lambda line: print(f'  {line}', flush=True))
     try:
@@ -79,7 +88,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     folder = (args.output / f'demo_{datetime.now():%Y%m%d_%H%M%S}').resolve()
     config = SessionConfig(tuple(args.motions), tuple(args.durations), args.rate,
                            hardware=args.hardware)
-    report = run(config, folder)
+    try:
+        with interrupt_on_signals():
+            report = run(config, folder)
+    except DomainInUseError as exc:
+        print(f'exo-has demo: not started: {exc}', file=sys.stderr, flush=True)
+        return 1
+    except KeyboardInterrupt as exc:
+        signum = exc.signum if isinstance(exc, SessionInterrupted) else signal.SIGINT
+        print(f'exo-has demo: interrupted by {signal.Signals(signum).name}: every node stopped, '
+              f'no report; the bag (if it was started) is in {folder / "bag"}', flush=True)
+        return 128 + signum
     print(f'exo-has demo: bag {folder / "bag"}')
     print(report)
     return 0

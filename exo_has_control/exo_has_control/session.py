@@ -8,16 +8,29 @@ nodes of :attr:`SessionConfig.composition` share one container process); it
 stops them in the reverse order (SIGINT, then SIGTERM, then SIGKILL), the recorder last, so the
 bag holds the whole session and is closed cleanly. The demo (``exo-has demo``) and the
 integration tests run sessions.
+
+A session owns its processes. Whatever ends its runner, nothing of it is left running:
+
+- SIGINT, SIGTERM and SIGHUP of the runner: :func:`interrupt_on_signals` turns the last two
+  into :class:`SessionInterrupted` (a ``KeyboardInterrupt``, as SIGINT raises), so the code that
+  stops the session runs, and the nodes end in order within :data:`STOP_BOUND` seconds.
+- SIGKILL of the runner, or its crash: each node process is tied to it
+  (:mod:`exo_has_runtime.testing.tether`) and gets SIGTERM, which it takes as SIGINT: the
+  recorder closes its bag, every node ends within :data:`ORPHAN_BOUND` seconds.
 """
 
 from __future__ import annotations
 
+import os
 import re
+import signal
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from exo_has_control.errors import DomainInUseError
 from exo_has_driver.hardware.bus import random_multicast_group
 from exo_has_runtime.container import ComponentSpec
 from exo_has_runtime.testing.processes import NodeProcess
@@ -38,6 +51,13 @@ READY_TIMEOUT = 120.0
 #: Pause after each stage of nodes came up [s]: their first matches with the running nodes
 #: settle before the next stage starts (and the watchdog starts judging).
 SETTLE_TIME = 1.0
+
+#: Longest time from SIGINT, SIGTERM or SIGHUP of a session's runner to the end of its last
+#: node [s] (each stops in well under a second; tests/test_session_ownership.py times it).
+STOP_BOUND = 10.0
+
+#: Longest time from SIGKILL of a session's runner to the end of its last node [s].
+ORPHAN_BOUND = 5.0
 
 #: Nodes a session composes into one process by default (bench/README.md, "Whole system"):
 #: the four simulated joints, as the hardware driver serves the four real ones from one
@@ -239,6 +259,77 @@ def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
     for name, members in composition.items():
         specs = compose(specs, name, members)
     return specs
+
+
+def node_names(config: SessionConfig) -> set[str]:
+    """Full names (``/name``) of the nodes a session runs."""
+    bag = Path('bag') if config.record else None  # a placeholder: only the names are read
+    return {f'/{name}' for spec in node_specs(config, bag)
+            for name in (spec.members or (spec.name,))}
+
+
+def refuse_if_occupied(config: SessionConfig, env: dict[str, str] | None = None) -> None:
+    """Refuse to run a session where nodes of its names already run on its ROS domain.
+
+    Two sessions on one domain would each take the other's messages: two sources on every
+    joint, and reports that mix both. This listens for
+    :data:`~exo_has_runtime.graph.CENSUS_TIME` seconds at most.
+
+    Raises
+    ------
+    DomainInUseError
+        Naming the nodes found, the domain, and how to choose another.
+
+    """
+    from exo_has_runtime.graph import nodes_on_domain  # rclpy: only where a check is made
+
+    domain = (env or {}).get('ROS_DOMAIN_ID', os.environ.get('ROS_DOMAIN_ID', '')).strip()
+    ours = node_names(config)
+    found = set(nodes_on_domain(int(domain) if domain else None, wanted=ours)) & ours
+    if found:
+        msg = (f'ROS domain {domain or 0} already has nodes of a session: '
+               f'{", ".join(sorted(found))} (another exo-has demo, or nodes started by hand). '
+               'Stop them, or run this one on a domain of its own: ROS_DOMAIN_ID=<0-101> ...')
+        raise DomainInUseError(msg)
+
+
+class SessionInterrupted(KeyboardInterrupt):
+    """The runner of a session got SIGTERM or SIGHUP: stop as on Ctrl-C (SIGINT).
+
+    Parameters
+    ----------
+    signum : int
+        The signal's number.
+
+    """
+
+    def __init__(self, signum: int) -> None:
+        self.signum = signum
+        super().__init__(f'interrupted by {signal.Signals(signum).name}')
+
+
+@contextmanager
+def interrupt_on_signals() -> Iterator[None]:
+    """While entered, SIGTERM and SIGHUP raise :class:`SessionInterrupted` in the main thread.
+
+    SIGINT keeps raising ``KeyboardInterrupt``; either way the ``finally`` clauses that stop a
+    session run. Only the first of these signals raises, so that a repeated SIGTERM does not
+    break off the stopping it started. The previous handlers come back on exit.
+    """
+    raised: list[int] = []
+
+    def interrupt(signum: int, frame: object) -> None:
+        if not raised:
+            raised.append(signum)
+            raise SessionInterrupted(signum)
+
+    previous = {number: signal.signal(number, interrupt)
+                for number in (signal.SIGTERM, signal.SIGHUP)}
+    try:
+        yield
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
 
 
 class Session:

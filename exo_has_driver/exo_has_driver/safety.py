@@ -19,19 +19,23 @@ The rules, per joint (thresholds in :class:`SafetyLimits`):
   or nothing at all within the start-up grace: STALE_STATE / STALE_COMMAND, FATAL;
 - a NaN or infinite command: INVALID_COMMAND, FATAL;
 - a NaN or infinite state value, a position more than 2 mm beyond a stroke end, a pressure
-  below an absolute vacuum or an unknown valve mode: SENSOR_FAULT, FATAL.
+  below an absolute vacuum or an unknown valve mode: SENSOR_FAULT, FATAL;
+- more than one publisher of a joint's state, or of its commands (the watchdog's own stop
+  commands aside), as the ROS graph shows them (:meth:`Watchdog.on_sources`): a second plant or
+  driver, a second controller, a replay or a left-over test node on a running system, which
+  the other rules cannot tell from the real one: SECOND_SOURCE, FATAL, naming the publishers.
 
 A persisting condition is reported once, when it arises. A FATAL event latches a stop
 (:attr:`Watchdog.stopped`) until :meth:`Watchdog.reset`, which is refused (a WARN event of the
 condition's kind) while a fatal condition still holds: a stale state, an open safety valve, a
-sensor fault. While stopped, commands are stop commands and are not checked, but every other
-rule keeps reporting new conditions once each.
+sensor fault, a second source. While stopped, commands are stop commands and are not checked,
+but every other rule keeps reporting new conditions once each.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
 
 from exo_has_driver.errors import SafetyConfigError
@@ -53,6 +57,7 @@ KIND_BUS_OFF = 10
 KIND_SENSOR_FAULT = 11
 KIND_E_STOP = 12
 KIND_RESET = 13
+KIND_SECOND_SOURCE = 14
 
 SEVERITY_INFO = 0
 SEVERITY_WARN = 1
@@ -67,6 +72,7 @@ KIND_NAMES = {
     KIND_INVALID_COMMAND: 'invalid command', KIND_DRIVE_FAULT: 'drive fault',
     KIND_HEARTBEAT_LOST: 'heartbeat lost', KIND_BUS_OFF: 'bus off',
     KIND_SENSOR_FAULT: 'sensor fault', KIND_E_STOP: 'emergency stop', KIND_RESET: 'reset',
+    KIND_SECOND_SOURCE: 'second source',
 }
 
 # Valve modes, numbered as exo_has_msgs/msg/HasState.
@@ -300,6 +306,8 @@ class _Joint:
     reference: float | None = None
     tracking_error: float | None = None
     over_limit_since: float | None = None
+    # Publishers found on the joint's topics, by topic: more than one on any is a fault.
+    sources: dict[str, tuple[str, ...]] = field(default_factory=dict)
     # Kinds whose condition holds and has been reported (the deduplication).
     active: set[int] = field(default_factory=set)
 
@@ -454,6 +462,36 @@ class Watchdog:
             if state is not None:
                 state.reference = float(angle) if math.isfinite(angle) else None
         return []
+
+    def on_sources(self, joint: str, topic: str, publishers: Sequence[str]) -> list[Event]:
+        """Take the publishers the ROS graph shows on one of a joint's topics.
+
+        Parameters
+        ----------
+        joint : str
+            A watched joint.
+        topic : str
+            Its state or command topic.
+        publishers : Sequence[str]
+            One name per publisher (its node's full name), the watchdog's own left out.
+
+        Returns
+        -------
+        list[Event]
+            SECOND_SOURCE, FATAL, when a topic of the joint comes to have more than one
+            publisher; nothing while that persists, or once every topic has one or none.
+
+        """
+        state = self._joint(joint)
+        state.sources[topic] = tuple(sorted(publishers))
+        crowded = {name: found for name, found in state.sources.items() if len(found) > 1}
+        if not crowded:
+            state.active.discard(KIND_SECOND_SOURCE)
+            return []
+        name, found = next(iter(sorted(crowded.items())))
+        return self._once(joint, state, KIND_SECOND_SOURCE, SEVERITY_FATAL, len(found), 1.0,
+                          f'{joint}: second source: {len(found)} publishers on {name} '
+                          f'({", ".join(found)}), where one is allowed')
 
     def check(self, t: float) -> list[Event]:
         """Check for stale states and commands at time t [s]; call it periodically.
@@ -618,6 +656,13 @@ class Watchdog:
             elif KIND_SENSOR_FAULT in state.active:
                 holding.append((joint, KIND_SENSOR_FAULT, math.nan, math.nan,
                                 f'{joint}: sensor fault persists'))
+            crowded = sorted((name, found) for name, found in state.sources.items()
+                             if len(found) > 1)
+            if crowded:
+                name, found = crowded[0]
+                holding.append((joint, KIND_SECOND_SOURCE, len(found), 1.0,
+                                f'{joint}: still {len(found)} publishers on {name} '
+                                f'({", ".join(found)})'))
         return holding
 
     def _check_pressure(self, joint: str, state: _Joint) -> list[Event]:

@@ -27,6 +27,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.time import Time
+from rclpy.topic_endpoint_info import TopicEndpointInfo
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Empty
 
@@ -54,6 +55,20 @@ LEVELS = {safety.LEVEL_OK: DiagnosticStatus.OK, safety.LEVEL_WARN: DiagnosticSta
 
 def _floats(low: float, high: float) -> list[FloatingPointRange]:
     return [FloatingPointRange(from_value=low, to_value=high)]
+
+
+#: What rmw reports as the node of an endpoint whose node it does not know yet.
+UNKNOWN_NODE_NAME = '_NODE_NAME_UNKNOWN_'
+
+#: How long a second publisher may stay unnamed before it is reported as it is [s].
+UNNAMED_WAIT_S = 0.3
+
+
+def _publisher_name(info: TopicEndpointInfo) -> str:
+    """Return a publisher's node's full name, or its GID while ROS does not know the node."""
+    if info.node_name == UNKNOWN_NODE_NAME:
+        return f'an unnamed node (publisher gid {bytes(info.endpoint_gid[:12]).hex()})'
+    return f'{info.node_namespace.rstrip("/")}/{info.node_name}'
 
 
 class Watchdog(Node):
@@ -98,6 +113,10 @@ class Watchdog(Node):
         grace = declare('startup_grace', safety.DEFAULT_STARTUP_GRACE, ParameterDescriptor(
             description='time for the first state and command after start or reset [s]',
             read_only=True, floating_point_range=_floats(0.0, 600.0))).value
+        source_period = declare('source_check_period', 0.1, ParameterDescriptor(
+            description='period of the search of the ROS graph for a second publisher of a '
+                        "joint's state or command [s]", read_only=True,
+            floating_point_range=_floats(0.05, 10.0))).value
         sources = {kind: declare(f'params_{kind}', kind, ParameterDescriptor(
             description=f'{kind} HAS parameter set: hip, knee or a parameters YAML file',
             read_only=True)).value for kind in ('hip', 'knee')}
@@ -119,6 +138,7 @@ class Watchdog(Node):
         self._deferred = False
         self._last_stop_ns = -1
         self._released_ns = -1
+        self._unnamed_since: dict[str, float] = {}
 
         self._event_publisher = self.create_publisher(SafetyEvent, SAFETY_EVENT_TOPIC,
                                                       SAFETY_EVENT_QOS)
@@ -138,6 +158,7 @@ class Watchdog(Node):
         self.create_subscription(Empty, SAFETY_RESET_TOPIC, self._on_reset, 10)
         self.create_timer(self._period, self._on_tick)
         self.create_timer(1.0, self._on_diagnostics)
+        self.create_timer(source_period, self._on_source_check)
         first = next(iter(self._limits.values()))
         self.get_logger().info(
             f'watchdog ready: {", ".join(self._joints)}; checks and stops at {rate:g} Hz, '
@@ -216,6 +237,29 @@ class Watchdog(Node):
             self._emit(now, core.check(t))
         if core.stopped:
             self._send_stop(now)
+
+    def _on_source_check(self) -> None:
+        """Look for more than one publisher on each joint's state and command topics."""
+        reading = self._reading()
+        if reading is None:
+            return
+        now, t, core = reading
+        me = (self.get_name(), self.get_namespace())
+        for joint in self._joints:
+            for topic in (has_state_topic(joint), has_command_topic(joint)):
+                name = self.resolve_topic_name(topic)
+                found = [info for info in self.get_publishers_info_by_topic(name)
+                         if (info.node_name, info.node_namespace) != me]
+                # DDS discovery shows a publisher before ROS tells its node's name (that comes
+                # on ros_discovery_info): wait a little for the name, not long for the event.
+                unnamed = [info for info in found if info.node_name == UNKNOWN_NODE_NAME]
+                if unnamed and len(found) > 1:
+                    since = self._unnamed_since.setdefault(name, t)
+                    if t - since < UNNAMED_WAIT_S:
+                        continue
+                self._unnamed_since.pop(name, None)
+                self._emit(now, core.on_sources(joint, name, [_publisher_name(info)
+                                                              for info in found]))
 
     def _on_diagnostics(self) -> None:
         reading = self._reading()

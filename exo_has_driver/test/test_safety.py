@@ -11,6 +11,7 @@ from exo_has_driver.safety import (
     KIND_OVER_PRESSURE,
     KIND_RESET,
     KIND_SAFETY_VALVE_OPEN,
+    KIND_SECOND_SOURCE,
     KIND_SENSOR_FAULT,
     KIND_STALE_COMMAND,
     KIND_STALE_STATE,
@@ -356,3 +357,31 @@ def test_diagnostics_give_each_joint_a_level_message_and_values():
     levels = {d.joint: d for d in watchdog.diagnostics(t + 0.2)}
     assert levels['left_hip'].level == LEVEL_ERROR
     assert levels['left_hip'].message == 'stopped until reset'
+
+
+def test_a_second_publisher_of_a_joints_command_is_fatal_names_both_and_blocks_a_reset():
+    watchdog, t = running()
+    topic = '/left_hip/has_command'
+    assert watchdog.on_sources('left_hip', topic, ['/pd_controller']) == []
+    event = only(watchdog.on_sources('left_hip', topic, ['/pd_controller', '/rogue']))
+    assert (event.joint, event.kind, event.severity, event.value, event.limit, event.latched) \
+        == ('left_hip', KIND_SECOND_SOURCE, SEVERITY_FATAL, 2.0, 1.0, True)
+    assert '/pd_controller' in event.text and '/rogue' in event.text
+    assert watchdog.stopped
+    # Reported once while it lasts; a reset is refused until the second publisher is gone.
+    assert watchdog.on_sources('left_hip', topic, ['/rogue', '/pd_controller']) == []
+    refused = only(watchdog.reset(t))
+    assert (refused.kind, refused.severity, refused.latched) == (
+        KIND_SECOND_SOURCE, SEVERITY_WARN, True)
+    assert watchdog.on_sources('left_hip', topic, ['/pd_controller']) == []
+    assert only(watchdog.reset(t)).kind == KIND_RESET
+    assert not watchdog.stopped
+
+
+def test_one_publisher_per_topic_on_every_joint_raises_nothing():
+    watchdog, _ = running()
+    for joint in JOINT_NAMES:
+        assert watchdog.on_sources(joint, f'/{joint}/has_state', [f'/{joint}_plant']) == []
+        assert watchdog.on_sources(joint, f'/{joint}/has_command', ['/pd_controller']) == []
+        assert watchdog.on_sources(joint, f'/{joint}/has_command', []) == []
+    assert not watchdog.stopped

@@ -2,7 +2,11 @@
 
 A :class:`NodeProcess` runs ``python -m MODULE ARGS...`` with its output in a file, can wait for
 a line of that output, and stops the process as ``ros2 launch`` would: SIGINT, then SIGTERM,
-then SIGKILL.
+then SIGKILL. The process is tied to the one that started it
+(:mod:`exo_has_runtime.testing.tether`): it gets SIGTERM when its starter dies, however that
+dies, so no node outlives the session or test that owns it. It runs in a session (and process
+group) of its own, so that a terminal's Ctrl-C or hang-up reaches only the owner, which stops
+its nodes in order.
 """
 
 from __future__ import annotations
@@ -52,7 +56,8 @@ class NodeProcess:
             self._log = Path(log_path).open('wb')
         self.log_path = Path(self._log.name)
         self.process = subprocess.Popen(
-            [sys.executable, '-u', '-m', module, *args], stdout=self._log,
+            [sys.executable, '-u', '-m', 'exo_has_runtime.testing.tether', str(os.getpid()),
+             module, *args], stdout=self._log, start_new_session=True,
             stderr=subprocess.STDOUT, stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,
             text=stdin,
             env={**os.environ, **(env or {})},

@@ -1,0 +1,171 @@
+"""A session owns its processes and its joints: nothing outlives it, nothing shares its joints.
+
+- ``exo-has demo`` stopped by SIGINT, SIGTERM or SIGKILL leaves no node running, and its bag
+  closed (SIGKILL included: the nodes are tied to the runner and get SIGTERM when it dies).
+- A second plant started by hand on a running session's joint is a FATAL safety event that
+  names both publishers, and every joint is commanded to stop.
+- A demo started while another runs on the same domain refuses, naming what it found.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from session_observer import Observer
+
+from exo_has_control.analysis import read_session
+from exo_has_control.report import write_report
+from exo_has_control.session import ORPHAN_BOUND, STOP_BOUND, Session, SessionConfig
+from exo_has_msgs.msg import SafetyEvent
+from exo_has_runtime.bag import bag_summary
+from exo_has_runtime.testing.processes import NodeProcess
+from exo_has_runtime.topics import JOINT_NAMES
+
+#: From a second plant's first state to the watchdog's FATAL event [s]: discovery of the
+#: newcomer, the name it waits for (0.3 s at most), and the next source check (every 0.1 s).
+SECOND_SOURCE_BOUND = 1.0
+
+
+def start_demo(folder: Path, durations: tuple[float, float] = (30.0, 5.0)) -> subprocess.Popen:
+    log = (folder / 'demo.log').open('wb')
+    return subprocess.Popen(
+        [sys.executable, '-m', 'exo_has_runtime.cli', 'demo', '--durations',
+         *map(str, durations), '--output', str(folder)],
+        stdout=log, stderr=subprocess.STDOUT, cwd=folder)
+
+
+def wait_for_line(path: Path, pattern: str, process: subprocess.Popen,
+                  timeout: float = 120.0) -> re.Match[str]:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        match = re.search(pattern, path.read_text(errors='replace'))
+        if match:
+            return match
+        if process.poll() is not None:
+            break
+        time.sleep(0.1)
+    pytest.fail(f'no {pattern!r} in the demo output:\n{path.read_text(errors="replace")}')
+
+
+def alive(pid: int) -> bool:
+    """Whether a process exists and is not a zombie."""
+    try:
+        state = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()[0]
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+    return state != 'Z'
+
+
+@pytest.mark.parametrize('signum', [signal.SIGINT, signal.SIGTERM, signal.SIGKILL],
+                         ids=['SIGINT', 'SIGTERM', 'SIGKILL'])
+def test_a_demo_stopped_by_a_signal_leaves_no_node_running_and_its_bag_closed(tmp_path, signum):
+    demo = start_demo(tmp_path)
+    log = tmp_path / 'demo.log'
+    try:
+        wait_for_line(log, r'trial 1/2: walk', demo)
+        pids = {int(pid) for pid in re.findall(r'\(pid (\d+)\)', log.read_text())}
+        assert len(pids) >= 5, log.read_text()
+        assert all(alive(pid) for pid in pids)
+        sent = time.monotonic()
+        os.kill(demo.pid, signum)
+        bound = ORPHAN_BOUND if signum == signal.SIGKILL else STOP_BOUND
+        while any(alive(pid) for pid in pids) and time.monotonic() - sent < bound + 5.0:
+            time.sleep(0.05)
+        ended = time.monotonic() - sent
+        left = sorted(pid for pid in pids if alive(pid))
+    finally:
+        try:
+            code = demo.wait(timeout=STOP_BOUND)
+        except subprocess.TimeoutExpired:
+            demo.kill()
+            code = demo.wait()
+    assert left == [], f'still running {ended:.1f} s after {signum.name}: {left}'
+    assert ended <= bound, f'the last node ended {ended:.1f} s after {signum.name}'
+    if signum != signal.SIGKILL:
+        assert code == 128 + signum, log.read_text()
+        assert f'interrupted by {signum.name}' in log.read_text()
+        assert 'Traceback' not in log.read_text()
+    # The recorder closed its bag in every case: metadata.yaml is there and lists messages.
+    (bag,) = tmp_path.glob('demo_*/bag')
+    summary = bag_summary(bag)
+    assert sum(topic.count for topic in summary.topics) > 1000
+
+
+def test_a_second_plant_on_a_running_session_is_fatal_names_both_and_stops_every_joint(
+        tmp_path):
+    config = SessionConfig(('walk',), (12.0,), 200.0)
+    running = Session(config, tmp_path)
+    running.start(show=lambda line: None)
+    observer = Observer(states=False)
+    try:
+        time.sleep(max(0.0, running.started_at - time.monotonic()) + 1.0)
+        assert observer.events == []
+        with NodeProcess('exo_has_sim.plant_node', [
+                '--ros-args', '-r', '__node:=rogue_plant', '-p', 'joint:=left_hip'],
+                log_path=tmp_path / 'rogue.log') as rogue:
+            rogue.wait_for_output(r'plant ready', 60.0)
+
+            def second_source():
+                found = [e for _, e in observer.events
+                         if e.kind == SafetyEvent.KIND_SECOND_SOURCE]
+                return found[0] if found else None
+            event = observer.wait_for(second_source, 10.0)
+            seen = observer.wait_for(
+                lambda: next((t for t, e in observer.events if e is event), None), 1.0)
+            # Every joint commanded to stop (a disabled command) after the event.
+            for joint in JOINT_NAMES:
+                observer.wait_for(lambda j=joint: next(
+                    (t for t, _, enable in observer.commands[j] if t >= seen and not enable),
+                    None), 2.0)
+        rogue_log = (tmp_path / 'rogue.log').read_text()
+    finally:
+        observer.close()
+        running.stop()
+    assert (event.joint, event.severity, event.latched) == (
+        'left_hip', SafetyEvent.SEVERITY_FATAL, True)
+    assert '/left_hip_plant' in event.text and '/rogue_plant' in event.text, event.text
+    # The rogue publishes its first state once ready (its timer runs from then); the graph
+    # shows its publisher from its constructor on, so the event may even come first. Both
+    # clocks are the system clock: the ready line's log stamp, the watchdog's event stamp.
+    ready = float(re.search(r'\[(\d+\.\d+)\] \[rogue_plant\]: .*plant ready', rogue_log)[1])
+    stamp = event.header.stamp.sec + 1e-9 * event.header.stamp.nanosec
+    print(f'second source: event {stamp - ready:+.2f} s from the rogue plant being ready')
+    assert stamp - ready <= SECOND_SOURCE_BOUND
+    # The session's report shows it.
+    assert running.bag is not None
+    data = read_session(running.bag)
+    report = write_report(data, tmp_path / 'report', config.motions, config.durations,
+                          bag=running.bag).read_text()
+    assert 'second source' in report and '/rogue_plant' in report
+
+
+def test_a_demo_started_beside_a_running_one_refuses_naming_the_nodes_it_found(tmp_path):
+    first_folder, second_folder = tmp_path / 'first', tmp_path / 'second'
+    first_folder.mkdir()
+    second_folder.mkdir()
+    first = start_demo(first_folder, (6.0, 3.0))
+    try:
+        wait_for_line(first_folder / 'demo.log', r'trial 1/2: walk', first)
+        second = subprocess.run(
+            [sys.executable, '-m', 'exo_has_runtime.cli', 'demo', '--output',
+             str(second_folder)], capture_output=True, text=True, timeout=120, cwd=second_folder)
+        assert first.wait(timeout=120) == 0, (first_folder / 'demo.log').read_text()
+    finally:
+        if first.poll() is None:
+            first.kill()
+            first.wait()
+    assert second.returncode == 1, second.stdout + second.stderr
+    assert 'not started: ROS domain' in second.stderr, second.stderr
+    assert re.search(r'already has nodes of a session: (/\w+(, )?)+', second.stderr)
+    assert 'Traceback' not in second.stderr
+    assert not list(second_folder.glob('demo_*/bag')), 'the refused demo started a recording'
+    # The first session went on undisturbed: no safety event in its report.
+    (report,) = first_folder.glob('demo_*/report/report.md')
+    assert '## Safety events\n\nNone.' in report.read_text()
