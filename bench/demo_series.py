@@ -28,7 +28,7 @@ from exo_has_control.analysis import rates, read_session, tracking
 from exo_has_control.demo import run
 from exo_has_control.report import segments_of
 from exo_has_control.session import SessionConfig
-from exo_has_runtime.topics import JOINT_NAMES
+from exo_has_runtime.joints import JOINT_NAMES
 
 ERROR = 2  # SafetyEvent severity: ERROR and FATAL count
 

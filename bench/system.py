@@ -45,7 +45,7 @@ from common import describe_machine, trial_cpu_shares, write_results
 
 from exo_has_control.analysis import read_session
 from exo_has_control.session import COMPOSITION, Session, SessionConfig
-from exo_has_runtime.topics import JOINT_NAMES
+from exo_has_runtime.joints import JOINT_NAMES
 
 
 def latencies(bag: Path) -> tuple[np.ndarray, np.ndarray, int]:

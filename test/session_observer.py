@@ -24,9 +24,9 @@ from exo_has_control.analysis import SessionData, read_session
 from exo_has_control.session import Session, SessionConfig
 from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
 from exo_has_runtime.bag import recover_bag
+from exo_has_runtime.joints import JOINT_NAMES
 from exo_has_runtime.profiles import SAFETY_EVENT_QOS
 from exo_has_runtime.topics import (
-    JOINT_NAMES,
     SAFETY_EVENT_TOPIC,
     SAFETY_RESET_TOPIC,
     has_command_topic,

@@ -18,7 +18,7 @@ from session_observer import Observer, observed_session, read_so_far
 from exo_has_control.analysis import rates, tracking
 from exo_has_control.report import segments_of
 from exo_has_control.session import Session, SessionConfig
-from exo_has_runtime.topics import JOINT_NAMES
+from exo_has_runtime.joints import JOINT_NAMES
 
 MOTIONS, DURATIONS = ('walk', 'squat'), (8.0, 8.0)
 RATE = 200.0

@@ -17,8 +17,11 @@ from exo_has_control.analysis import rates, tracking
 from exo_has_control.report import segments_of, write_report
 from exo_has_control.session import SessionConfig, recorded_topics
 from exo_has_runtime.bag import bag_topics, read_messages, recover_bag
+from exo_has_runtime.joints import JOINT_NAMES
 from exo_has_runtime.testing.processes import NodeProcess
-from exo_has_runtime.topics import JOINT_NAMES, JOINT_REFERENCE_TOPIC
+from exo_has_runtime.topics import (
+    JOINT_REFERENCE_TOPIC,
+)
 
 MOTIONS, DURATIONS = ('walk', 'squat'), (8.0, 8.0)
 RATE = 200.0

@@ -25,8 +25,8 @@ from exo_has_control.report import write_report
 from exo_has_control.session import ORPHAN_BOUND, STOP_BOUND, Session, SessionConfig
 from exo_has_msgs.msg import SafetyEvent
 from exo_has_runtime.bag import bag_summary
+from exo_has_runtime.joints import JOINT_NAMES
 from exo_has_runtime.testing.processes import NodeProcess
-from exo_has_runtime.topics import JOINT_NAMES
 
 #: From a second plant's first state to the watchdog's FATAL event [s]: discovery of the
 #: newcomer, the name it waits for (0.3 s at most), and the next source check (every 0.1 s).

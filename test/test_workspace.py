@@ -123,3 +123,15 @@ def test_the_installed_plant_executable_starts_publishes_and_stops_cleanly(ros_c
     assert states[0].joint == 'left_knee'
     assert code == 0, output
     assert 'left_knee plant ready' in output
+
+
+def test_the_controller_watchdog_and_driver_start_without_loading_the_simulator():
+    # They read joint names (exo_has_runtime.joints) and the PD law (exo_has_sim.control_law),
+    # not the numba-compiled model: loading it would cost each node seconds and rewrite caches.
+    code = ('import sys; import exo_has_control.pd_controller, exo_has_driver.watchdog, '
+            'exo_has_driver.driver_node; '
+            "print(sorted(m for m in sys.modules if m == 'numba' or m in "
+            "('exo_has_sim.model', 'exo_has_sim.simulate', 'exo_has_sim.plant')))")
+    result = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                            timeout=60, check=True)
+    assert result.stdout.strip() == '[]', result.stdout + result.stderr

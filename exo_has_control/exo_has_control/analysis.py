@@ -17,8 +17,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from exo_has_runtime.bag import default_typestore, read_messages
+from exo_has_runtime.joints import JOINT_NAMES, joint_type_of
 from exo_has_runtime.topics import (
-    JOINT_NAMES,
     JOINT_REFERENCE_TOPIC,
     SAFETY_EVENT_TOPIC,
     has_command_topic,
@@ -26,7 +26,6 @@ from exo_has_runtime.topics import (
 )
 from exo_has_sim.kinematics import Linkage
 from exo_has_sim.parameters import load_parameters
-from exo_has_sim.plant import joint_type_of
 
 FloatArray = NDArray[np.float64]
 

@@ -15,6 +15,7 @@ import math
 from dataclasses import dataclass
 
 from exo_has_sim import linear
+from exo_has_sim.control_law import pd_speed_command
 from exo_has_sim.parameters import HasParameters
 
 #: The paper's gains (section 5.1) in SI: P = 35 (rad/s)/mm, D = 15 (rad/s)/(m/s).
@@ -64,11 +65,11 @@ class PdGains:
 def pd_command(gains: PdGains, x_ref: float, v_ref: float, x: float, v: float) -> float:
     """Motor speed command [rad/s] for a reference and a measurement (positions m, speeds m/s).
 
-    ``kff v_ref + kp (x_ref - x) + kd (v_ref - v)``, saturated at the speed limit; exo_has_sim's
-    closed-loop simulation uses the same law.
+    The law of :func:`exo_has_sim.control_law.pd_speed_command`, which exo_has_sim's
+    closed-loop simulations compute with too.
     """
-    command = gains.kff * v_ref + gains.kp * (x_ref - x) + gains.kd * (v_ref - v)
-    return min(max(command, -gains.speed_limit), gains.speed_limit)
+    return pd_speed_command(gains.kp, gains.kd, gains.kff, gains.speed_limit, x_ref, v_ref, x,
+                            v)
 
 
 class PositionLoop:

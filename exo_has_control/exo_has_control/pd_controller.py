@@ -26,17 +26,15 @@ from exo_has_control.pd import PAPER_KD, PAPER_KP, PdGains, PositionLoop
 from exo_has_control.tracking import ReferenceFollower
 from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
 from exo_has_runtime.execution import run_node
+from exo_has_runtime.joints import JOINT_NAMES, check_joint, joint_type_of
 from exo_has_runtime.profiles import SAFETY_EVENT_QOS
 from exo_has_runtime.topics import (
-    JOINT_NAMES,
     JOINT_REFERENCE_TOPIC,
     SAFETY_EVENT_TOPIC,
-    check_joint,
     has_command_topic,
     has_state_topic,
 )
 from exo_has_sim.parameters import HasParameters, load_parameters
-from exo_has_sim.plant import joint_type_of
 
 GAIN_RANGE = [FloatingPointRange(from_value=0.0, to_value=1.0e7)]
 

@@ -24,7 +24,7 @@ from exo_has_control.analysis import (
     rates,
     tracking,
 )
-from exo_has_runtime.topics import JOINT_NAMES
+from exo_has_runtime.joints import JOINT_NAMES
 
 SEVERITIES = ('info', 'warn', 'error', 'fatal')
 

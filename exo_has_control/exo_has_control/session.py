@@ -33,17 +33,16 @@ from pathlib import Path
 from exo_has_control.errors import DomainInUseError
 from exo_has_driver.hardware.bus import random_multicast_group
 from exo_has_runtime.container import ComponentSpec
+from exo_has_runtime.joints import JOINT_NAMES, joint_type_of
 from exo_has_runtime.testing.processes import NodeProcess
 from exo_has_runtime.topics import (
     DIAGNOSTICS_TOPIC,
-    JOINT_NAMES,
     JOINT_REFERENCE_TOPIC,
     SAFETY_EVENT_TOPIC,
     has_command_topic,
     has_state_topic,
     load_force_topic,
 )
-from exo_has_sim.plant import joint_type_of
 
 #: Time allowed for a node to report ready [s]; a plant's first start compiles the model.
 READY_TIMEOUT = 120.0

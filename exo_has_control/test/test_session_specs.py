@@ -9,7 +9,7 @@ import pytest
 
 from exo_has_control.session import COMPOSITION, SessionConfig, compose, node_specs
 from exo_has_runtime.container import split_arguments
-from exo_has_runtime.topics import JOINT_NAMES
+from exo_has_runtime.joints import JOINT_NAMES
 
 PLANTS = tuple(f'{joint}_plant' for joint in JOINT_NAMES)
 

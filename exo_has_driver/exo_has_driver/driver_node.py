@@ -66,16 +66,15 @@ from exo_has_driver.hardware.units import DriveUnits
 from exo_has_driver.node_parameters import checked_joints, joint_type_parameters
 from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
 from exo_has_runtime.execution import run_node
+from exo_has_runtime.joints import JOINT_NAMES, joint_type_of
 from exo_has_runtime.profiles import SAFETY_EVENT_QOS
 from exo_has_runtime.realtime import MAX_PRIORITY, set_realtime_priority
 from exo_has_runtime.topics import (
-    JOINT_NAMES,
     SAFETY_EVENT_TOPIC,
     SAFETY_RESET_TOPIC,
     has_command_topic,
     has_state_topic,
 )
-from exo_has_sim.plant import joint_type_of
 
 #: Own events remembered to recognise them on the shared topic.
 OWN_EVENTS = 256

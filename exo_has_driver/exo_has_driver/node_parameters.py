@@ -7,7 +7,7 @@ the parameter at fault and the error says which node's settings are wrong.
 from __future__ import annotations
 
 from exo_has_driver.errors import DriverError
-from exo_has_runtime.topics import JOINT_NAMES, check_joint
+from exo_has_runtime.joints import JOINT_NAMES, check_joint
 from exo_has_sim.parameters import HasParameters, load_parameters
 
 

@@ -36,17 +36,16 @@ from exo_has_driver.errors import SafetyConfigError
 from exo_has_driver.node_parameters import checked_joints, joint_type_parameters
 from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
 from exo_has_runtime.execution import run_node
+from exo_has_runtime.joints import JOINT_NAMES, joint_type_of
 from exo_has_runtime.profiles import DEEP_SENSOR_QOS, SAFETY_EVENT_QOS
 from exo_has_runtime.topics import (
     DIAGNOSTICS_TOPIC,
-    JOINT_NAMES,
     JOINT_REFERENCE_TOPIC,
     SAFETY_EVENT_TOPIC,
     SAFETY_RESET_TOPIC,
     has_command_topic,
     has_state_topic,
 )
-from exo_has_sim.plant import joint_type_of
 
 # The core's levels are ints; the message's constants are one byte each (bytes in rclpy).
 LEVELS = {safety.LEVEL_OK: DiagnosticStatus.OK, safety.LEVEL_WARN: DiagnosticStatus.WARN,

@@ -31,7 +31,7 @@ from exo_has_driver.safety import (
     Watchdog,
 )
 from exo_has_msgs.msg import HasState, SafetyEvent
-from exo_has_runtime.topics import JOINT_NAMES
+from exo_has_runtime.joints import JOINT_NAMES
 from exo_has_sim.kinematics import Linkage
 from exo_has_sim.parameters import load_parameters
 

@@ -11,11 +11,11 @@ from rclpy.qos import qos_profile_sensor_data
 from std_msgs.msg import Empty
 
 from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
+from exo_has_runtime.joints import JOINT_NAMES
 from exo_has_runtime.profiles import SAFETY_EVENT_QOS
 from exo_has_runtime.testing.processes import NodeProcess
 from exo_has_runtime.topics import (
     DIAGNOSTICS_TOPIC,
-    JOINT_NAMES,
     SAFETY_EVENT_TOPIC,
     SAFETY_RESET_TOPIC,
     has_command_topic,

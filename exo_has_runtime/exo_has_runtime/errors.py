@@ -13,6 +13,10 @@ class RuntimeSeamError(Exception):
     """Base of every error raised by exo_has_runtime."""
 
 
+class UnknownJointError(RuntimeSeamError, ValueError):
+    """A joint name that is not one of the exoskeleton's, or not a hip's or a knee's."""
+
+
 class UnknownMessageTypeError(RuntimeSeamError, LookupError):
     """A message type name that no known package defines, or that is malformed."""
 

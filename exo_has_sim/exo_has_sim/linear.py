@@ -13,7 +13,6 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from exo_has_sim import model
 from exo_has_sim.parameters import HasParameters
 
 FloatArray = NDArray[np.float64]
@@ -112,6 +111,10 @@ def linearize(params: HasParameters, position: float | None = None,
     Central differences of :func:`exo_has_sim.model.rhs` in the states (x, v, p_A), with the
     spool in assist and the motor speed as the input (the motor loop is left out, as in Eq. 12).
     """
+    # Imported here: the model is compiled with numba, which the controller, that reads only
+    # the closed-form gains above, does not need.
+    from exo_has_sim import model
+
     x0 = params.stroke / 2.0 if position is None else position
     y0 = model.initial_state(params, x0, load_force)
     prm = model.pack(params)

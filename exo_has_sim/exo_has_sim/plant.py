@@ -27,22 +27,6 @@ from exo_has_sim.simulate import PlantSimulator
 MAX_SPAN = 0.05
 
 
-def joint_type_of(joint: str) -> str:
-    """``'hip'`` or ``'knee'`` for a joint name such as ``left_knee``.
-
-    Raises
-    ------
-    ParameterError
-        For a name that ends in neither.
-
-    """
-    for kind in ('hip', 'knee'):
-        if joint.endswith(kind):
-            return kind
-    msg = f'cannot tell hip from knee in joint name {joint!r}'
-    raise ParameterError(msg)
-
-
 @dataclass(frozen=True)
 class PlantSample:
     """The state of one HAS at an instant, in the units of exo_has_msgs/msg/HasState."""

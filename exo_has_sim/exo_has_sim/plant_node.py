@@ -19,18 +19,17 @@ from std_msgs.msg import Float64
 
 from exo_has_msgs.msg import HasCommand, HasState
 from exo_has_runtime.execution import run_node
+from exo_has_runtime.joints import JOINT_NAMES, check_joint, joint_type_of
 from exo_has_runtime.realtime import MAX_PRIORITY, set_realtime_priority
 from exo_has_runtime.timing import PeriodMonitor
 from exo_has_runtime.topics import (
-    JOINT_NAMES,
-    check_joint,
     has_command_topic,
     has_state_topic,
     load_force_topic,
 )
 from exo_has_sim.loads import PAPER_LOAD_MASS, default_load_force
 from exo_has_sim.parameters import load_parameters
-from exo_has_sim.plant import Plant, joint_type_of
+from exo_has_sim.plant import Plant
 
 
 class PlantNode(Node):

@@ -13,6 +13,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from exo_has_sim import model
+from exo_has_sim.control_law import pd_speed_command
 from exo_has_sim.errors import SimulationError
 from exo_has_sim.parameters import HasParameters
 
@@ -128,8 +129,8 @@ def simulate_reference_closed_loop(params: HasParameters, y0: np.ndarray, x_ref:
         measured = y[model.X]
         velocity = (measured - previous) / period if k > 0 else 0.0
         previous = measured
-        command = kff * v_ref[k] + kp * (x_ref[k] - measured) + kd * (v_ref[k] - velocity)
-        command = min(max(command, -limit), limit)
+        command = pd_speed_command(kp, kd, kff, limit, float(x_ref[k]), float(v_ref[k]),
+                                   float(measured), velocity)
 
         def fun(_t: float, state: np.ndarray, c: float = command,
                 f: float = float(f_load[k])) -> np.ndarray:

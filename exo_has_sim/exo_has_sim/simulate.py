@@ -28,21 +28,23 @@ import numpy as np
 from numba import njit
 
 from exo_has_sim import model
+from exo_has_sim.control_law import pd_speed_command
 from exo_has_sim.errors import SimulationError
 from exo_has_sim.parameters import HasParameters
 
 
 def _drop_stale_compiled_code() -> None:
-    """Delete this module's numba cache when model.py changed since it was compiled.
+    """Delete this module's numba cache when model.py or control_law.py changed since.
 
     numba invalidates a cached function only when its own file changes, but the functions here
-    compile the model's right-hand side into themselves: after an edit of model.py they would
-    go on running the old model.
+    compile the model's right-hand side and the PD law into themselves: after an edit of
+    either they would go on running the old code.
     """
     here = Path(__file__).resolve().parent
     cache = here / '__pycache__'
     stamp = cache / 'simulate.model-source.sha256'
-    digest = hashlib.sha256((here / 'model.py').read_bytes()).hexdigest()
+    digest = hashlib.sha256(b''.join((here / name).read_bytes()
+                                     for name in ('model.py', 'control_law.py'))).hexdigest()
     try:
         if stamp.is_file() and stamp.read_text() == digest:
             return
@@ -55,6 +57,9 @@ def _drop_stale_compiled_code() -> None:
 
 
 _drop_stale_compiled_code()
+
+#: The controller's PD law (:mod:`exo_has_sim.control_law`), compiled for the closed loop.
+_pd_speed_command = njit(cache=True)(pd_speed_command)
 
 GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
 #: Default largest integration step [s].
@@ -260,9 +265,8 @@ def _closed_loop(y0: np.ndarray, prm: np.ndarray, x_ref: np.ndarray, v_ref: np.n
             measured = y[j, model.X]
             velocity = (measured - previous) / period if k > 0 else 0.0
             previous = measured
-            command = gains[j, 2] * v_ref[k, j] + gains[j, 0] * (x_ref[k, j] - measured) \
-                + gains[j, 1] * (v_ref[k, j] - velocity)
-            commands[k, j] = min(max(command, -limit), limit)
+            commands[k, j] = _pd_speed_command(gains[j, 0], gains[j, 1], gains[j, 2], limit,
+                                               x_ref[k, j], v_ref[k, j], measured, velocity)
             taken += _advance_period(y[j], commands, j, k, lag, shift, y0[j, model.N], period,
                                      step, f_load[k, j], prm[j], work, jac, pivots, lu, atol,
                                      rtol, max_step)

@@ -35,10 +35,11 @@ from exo_has_driver.devices.drive import Drive
 from exo_has_driver.devices.sensor_board import SensorBoard
 from exo_has_driver.devices.slave import NMT_STATE_NAMES, Slave
 from exo_has_driver.errors import DeviceError, FaultInjectionError
+from exo_has_runtime.joints import joint_type_of
 from exo_has_sim.errors import SimulationError
 from exo_has_sim.loads import default_load_force
 from exo_has_sim.parameters import load_parameters
-from exo_has_sim.plant import Plant, joint_type_of
+from exo_has_sim.plant import Plant
 
 _LOG = logging.getLogger(__name__)
 

@@ -9,7 +9,11 @@ from rclpy.qos import qos_profile_sensor_data
 
 from exo_has_msgs.msg import HasCommand, HasState
 from exo_has_runtime.execution import run_node
-from exo_has_runtime.topics import JOINT_NAMES, has_command_topic, has_state_topic
+from exo_has_runtime.joints import JOINT_NAMES
+from exo_has_runtime.topics import (
+    has_command_topic,
+    has_state_topic,
+)
 
 
 class StateEcho(Node):

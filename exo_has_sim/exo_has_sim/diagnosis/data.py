@@ -429,9 +429,9 @@ def read_bag(path: str | Path, joint: str, limits: Limits = Limits()) -> Measure
     else:
         columns['motor_speed_command'] = command_in_state
     if references:
+        from exo_has_runtime.joints import joint_type_of
         from exo_has_sim.kinematics import Linkage
         from exo_has_sim.parameters import load_parameters
-        from exo_has_sim.plant import joint_type_of
 
         references.sort()
         linkage = Linkage.from_parameters(load_parameters(joint_type_of(joint)))

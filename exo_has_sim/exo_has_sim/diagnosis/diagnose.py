@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from exo_has_runtime.joints import JOINT_TYPES, joint_type_of
 from exo_has_sim.diagnosis.compare import (
     DEFAULT_HORIZON,
     Span,
@@ -54,8 +55,7 @@ from exo_has_sim.diagnosis.residuals import (
 from exo_has_sim.diagnosis.selection import REFERENCE_TOLERANCE, Score, forward_selection
 from exo_has_sim.diagnosis.transfer import ThirdOrderModel, identify_third_order
 from exo_has_sim.errors import DiagnosisError, FitError, MeasurementError
-from exo_has_sim.parameters import JOINT_TYPES, load_parameters
-from exo_has_sim.plant import joint_type_of
+from exo_has_sim.parameters import load_parameters
 
 #: Default burn-in before each window's scored samples [s]: the hydraulic mode excited by an
 #: imperfect initial state (velocity from a noisy position) decays by e^-2 in 0.1 s.
