@@ -49,8 +49,8 @@ from rclpy.qos import qos_profile_sensor_data
 from std_msgs.msg import Empty
 
 from exo_has_driver import can_dictionary as cd
-from exo_has_driver import safety
 from exo_has_driver.errors import HardwareConfigError, MasterStoppedError
+from exo_has_driver.events import Event, SafetyKind, Severity
 from exo_has_driver.hardware.bus import open_bus
 from exo_has_driver.hardware.master import (
     DEFAULT_ACCELERATION,
@@ -269,7 +269,7 @@ class Driver(Node):
             self._history = event
             self._gate.on_event(event.latched, event.text)
             return
-        if event.severity == safety.SEVERITY_FATAL and event.latched:
+        if event.severity == Severity.FATAL and event.latched:
             self._master.request_stop(event.text)
         if self._gate.on_event(event.latched, event.text):
             self._master.request_reset()
@@ -286,7 +286,7 @@ class Driver(Node):
         events = master.take_events()
         refused = self._gate.expired(time.monotonic())
         if refused is not None:
-            events.append(safety.Event('', safety.KIND_E_STOP, safety.SEVERITY_WARN, math.nan,
+            events.append(Event('', SafetyKind.E_STOP, Severity.WARN, math.nan,
                                        math.nan, True, refused))
         if events:
             self._emit(events)
@@ -295,7 +295,7 @@ class Driver(Node):
             self.get_logger().fatal(fatal)
             raise MasterStoppedError(fatal)
 
-    def _emit(self, events: list[safety.Event]) -> None:
+    def _emit(self, events: list[Event]) -> None:
         stamp = self.get_clock().now().to_msg()
         logger = self.get_logger()
         for event in events:
@@ -305,9 +305,9 @@ class Driver(Node):
             message.header.stamp = stamp
             self._own.append(_signature(message))
             self._event_publisher.publish(message)
-            if event.severity >= safety.SEVERITY_ERROR:
+            if event.severity >= Severity.ERROR:
                 logger.error(event.text)
-            elif event.severity == safety.SEVERITY_WARN:
+            elif event.severity == Severity.WARN:
                 logger.warning(event.text)
             else:
                 logger.info(event.text)

@@ -39,46 +39,11 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
 
 from exo_has_driver.errors import SafetyConfigError
+from exo_has_driver.events import Condition, Event, SafetyKind, Severity, StopLatch
 from exo_has_sim.errors import KinematicsError
 from exo_has_sim.kinematics import Linkage
 from exo_has_sim.parameters import HasParameters
-
-# Kinds and severities, numbered as exo_has_msgs/msg/SafetyEvent (a test checks they agree).
-KIND_SAFETY_VALVE_OPEN = 1
-KIND_OVER_PRESSURE = 2
-KIND_STROKE_END = 3
-KIND_TRACKING_ERROR = 4
-KIND_STALE_STATE = 5
-KIND_STALE_COMMAND = 6
-KIND_INVALID_COMMAND = 7
-KIND_DRIVE_FAULT = 8
-KIND_HEARTBEAT_LOST = 9
-KIND_BUS_OFF = 10
-KIND_SENSOR_FAULT = 11
-KIND_E_STOP = 12
-KIND_RESET = 13
-KIND_SECOND_SOURCE = 14
-
-SEVERITY_INFO = 0
-SEVERITY_WARN = 1
-SEVERITY_ERROR = 2
-SEVERITY_FATAL = 3
-
-#: Readable names of the kinds, for texts and diagnostics.
-KIND_NAMES = {
-    KIND_SAFETY_VALVE_OPEN: 'safety valve open', KIND_OVER_PRESSURE: 'over-pressure',
-    KIND_STROKE_END: 'stroke end', KIND_TRACKING_ERROR: 'tracking error',
-    KIND_STALE_STATE: 'stale state', KIND_STALE_COMMAND: 'stale command',
-    KIND_INVALID_COMMAND: 'invalid command', KIND_DRIVE_FAULT: 'drive fault',
-    KIND_HEARTBEAT_LOST: 'heartbeat lost', KIND_BUS_OFF: 'bus off',
-    KIND_SENSOR_FAULT: 'sensor fault', KIND_E_STOP: 'emergency stop', KIND_RESET: 'reset',
-    KIND_SECOND_SOURCE: 'second source',
-}
-
-# Valve modes, numbered as exo_has_msgs/msg/HasState.
-VALVE_FREE = 0
-VALVE_ASSIST = 1
-VALVE_RELIEF = 2
+from exo_has_sim.valve import ValveMode
 
 # Levels, numbered as diagnostic_msgs/msg/DiagnosticStatus.
 LEVEL_OK = 0
@@ -235,38 +200,6 @@ class SafetyLimits:
 
 
 @dataclass(frozen=True)
-class Event:
-    """A safety event, field for field an exo_has_msgs/msg/SafetyEvent without its header.
-
-    Attributes
-    ----------
-    joint : str
-        Joint concerned, empty for a system-wide event (a reset).
-    kind : int
-        One of the ``KIND_*`` constants.
-    severity : int
-        One of the ``SEVERITY_*`` constants.
-    value : float
-        Measured value, in the unit SafetyEvent lists for the kind; NaN where there is none.
-    limit : float
-        Limit the value crossed, same unit; NaN where there is none.
-    latched : bool
-        Whether the watchdog holds a latched stop after this event.
-    text : str
-        Human-readable description.
-
-    """
-
-    joint: str
-    kind: int
-    severity: int
-    value: float
-    limit: float
-    latched: bool
-    text: str
-
-
-@dataclass(frozen=True)
 class JointDiagnostic:
     """Summary of one joint for a diagnostic_msgs/msg/DiagnosticStatus.
 
@@ -309,7 +242,7 @@ class _Joint:
     # Publishers found on the joint's topics, by topic: more than one on any is a fault.
     sources: dict[str, tuple[str, ...]] = field(default_factory=dict)
     # Kinds whose condition holds and has been reported (the deduplication).
-    active: set[int] = field(default_factory=set)
+    active: set[SafetyKind] = field(default_factory=set)
 
 
 def _mpa(pressure: float) -> str:
@@ -342,8 +275,7 @@ class Watchdog:
             raise SafetyConfigError(msg)
         self._start = start
         self._joints = {joint: _Joint(limit, start) for joint, limit in limits.items()}
-        self._stopped = False
-        self._cause: Event | None = None
+        self._latch = StopLatch()
 
     @property
     def joints(self) -> tuple[str, ...]:
@@ -353,12 +285,12 @@ class Watchdog:
     @property
     def stopped(self) -> bool:
         """Whether a stop is latched."""
-        return self._stopped
+        return self._latch.latched
 
     @property
     def cause(self) -> Event | None:
         """The FATAL event that latched the stop, None when not stopped."""
-        return self._cause
+        return self._latch.cause
 
     def on_state(self, joint: str, t: float, position: float, pressure_a: float,
                  pressure_b: float, valve_mode: int) -> list[Event]:
@@ -385,7 +317,7 @@ class Watchdog:
         """
         state = self._joint(joint)
         state.state_time = t
-        state.active.discard(KIND_STALE_STATE)
+        state.active.discard(SafetyKind.STALE_STATE)
         fault = _sensor_fault(state.limits, position, pressure_a, pressure_b, valve_mode)
         angle = None
         if fault is None:
@@ -397,9 +329,9 @@ class Watchdog:
         if fault is not None:
             state.angle = state.tracking_error = state.over_limit_since = None
             value, limit, what = fault
-            return self._once(joint, state, KIND_SENSOR_FAULT, SEVERITY_FATAL, value, limit,
+            return self._once(joint, state, SafetyKind.SENSOR_FAULT, Severity.FATAL, value, limit,
                               f'{joint}: sensor fault: {what}')
-        state.active.discard(KIND_SENSOR_FAULT)
+        state.active.discard(SafetyKind.SENSOR_FAULT)
         state.position, state.angle = position, angle
         state.pressure_a, state.pressure_b, state.valve_mode = pressure_a, pressure_b, valve_mode
         return [*self._check_pressure(joint, state), *self._check_stroke(joint, state),
@@ -426,15 +358,16 @@ class Watchdog:
 
         """
         state = self._joint(joint)
-        if self._stopped:
+        if self._latch.latched:
             return []
         state.command_time = t
-        state.active.discard(KIND_STALE_COMMAND)
+        state.active.discard(SafetyKind.STALE_COMMAND)
         if not math.isfinite(motor_speed):
             state.enabled = False
-            return self._once(joint, state, KIND_INVALID_COMMAND, SEVERITY_FATAL, motor_speed,
-                              math.nan, f'{joint}: invalid command: motor speed {motor_speed}')
-        state.active.discard(KIND_INVALID_COMMAND)
+            return self._once(joint, state, SafetyKind.INVALID_COMMAND, Severity.FATAL,
+                              motor_speed, math.nan,
+                              f'{joint}: invalid command: motor speed {motor_speed}')
+        state.active.discard(SafetyKind.INVALID_COMMAND)
         state.enabled = bool(enable)
         return []
 
@@ -486,10 +419,10 @@ class Watchdog:
         state.sources[topic] = tuple(sorted(publishers))
         crowded = {name: found for name, found in state.sources.items() if len(found) > 1}
         if not crowded:
-            state.active.discard(KIND_SECOND_SOURCE)
+            state.active.discard(SafetyKind.SECOND_SOURCE)
             return []
         name, found = next(iter(sorted(crowded.items())))
-        return self._once(joint, state, KIND_SECOND_SOURCE, SEVERITY_FATAL, len(found), 1.0,
+        return self._once(joint, state, SafetyKind.SECOND_SOURCE, Severity.FATAL, len(found), 1.0,
                           f'{joint}: second source: {len(found)} publishers on {name} '
                           f'({", ".join(found)}), where one is allowed')
 
@@ -504,12 +437,12 @@ class Watchdog:
         """
         events: list[Event] = []
         # A stop latched by this very check does not hide a joint's stale command.
-        commands_checked = not self._stopped
+        commands_checked = not self._latch.latched
         for joint, state in self._joints.items():
             age, limit, what = self._state_age(state, t)
             if age > limit:
-                events += self._once(joint, state, KIND_STALE_STATE, SEVERITY_FATAL, age, limit,
-                                     f'{joint}: stale state: {what}')
+                events += self._once(joint, state, SafetyKind.STALE_STATE, Severity.FATAL, age,
+                                     limit, f'{joint}: stale state: {what}')
             if not commands_checked:
                 continue
             if state.command_time is None:
@@ -519,7 +452,7 @@ class Watchdog:
                 age, limit = t - state.command_time, state.limits.command_timeout
                 what = f'no command for {age:.3f} s (limit {limit:.3f} s)'
             if age > limit:
-                events += self._once(joint, state, KIND_STALE_COMMAND, SEVERITY_FATAL, age,
+                events += self._once(joint, state, SafetyKind.STALE_COMMAND, Severity.FATAL, age,
                                      limit, f'{joint}: stale command: {what}')
         return events
 
@@ -535,29 +468,19 @@ class Watchdog:
             as a released stop, on which controllers resume.
 
         """
-        nan = math.nan
-        if not self._stopped:
-            return [Event('', KIND_RESET, SEVERITY_INFO, nan, nan, False,
-                          'reset: no stop was latched')]
-        holding = self._holding(t)
-        if holding:
-            joint, kind, value, limit, _ = holding[0]
-            texts = '; '.join(text for *_, text in holding)
-            return [Event(joint, kind, SEVERITY_WARN, float(value), float(limit), True,
-                          f'reset refused: {texts}')]
-        cause = self._cause
-        self._stopped = False
-        self._cause = None
-        for state in self._joints.values():
-            # Controllers resume on the reset: give them the start-up grace again.
-            state.command_time = None
-            state.command_epoch = t
-            state.enabled = False
-            state.over_limit_since = None
-            state.active -= {KIND_TRACKING_ERROR, KIND_STALE_COMMAND, KIND_INVALID_COMMAND}
-        because = f' (latched by {cause.text})' if cause is not None else ''
-        return [Event('', KIND_RESET, SEVERITY_INFO, nan, nan, False,
-                      f'reset: stop released{because}')]
+        if self._latch.latched:
+            refusal = self._latch.refusal(self._holding(t))
+            if refusal is not None:
+                return [refusal]
+            for state in self._joints.values():
+                # Controllers resume on the reset: give them the start-up grace again.
+                state.command_time = None
+                state.command_epoch = t
+                state.enabled = False
+                state.over_limit_since = None
+                state.active -= {SafetyKind.TRACKING_ERROR, SafetyKind.STALE_COMMAND,
+                                 SafetyKind.INVALID_COMMAND}
+        return [self._latch.release()]
 
     def diagnostics(self, t: float) -> list[JointDiagnostic]:
         """Summarise every joint at time t [s], for diagnostic_msgs.
@@ -573,14 +496,14 @@ class Watchdog:
         for joint, state in self._joints.items():
             age, limit, what = self._state_age(state, t)
             stale = age > limit
-            kinds = sorted(state.active - {KIND_STALE_STATE})
+            kinds = sorted(state.active - {SafetyKind.STALE_STATE})
             parts = [what] if stale else []
-            parts += [KIND_NAMES[kind] for kind in kinds]
-            if self._stopped:
+            parts += [SafetyKind(kind).label for kind in kinds]
+            if self._latch.latched:
                 parts.append('stopped until reset')
             if stale:
                 level = LEVEL_STALE
-            elif self._stopped or set(kinds) - {KIND_OVER_PRESSURE}:
+            elif self._latch.latched or set(kinds) - {SafetyKind.OVER_PRESSURE}:
                 level = LEVEL_ERROR
             elif kinds:
                 level = LEVEL_WARN
@@ -600,7 +523,7 @@ class Watchdog:
                 ('state_age [s]', f'{age:.3f}' if state.state_time is not None else 'nan'),
                 ('command_age [s]', f'{command_age:.3f}'),
                 ('enabled', str(state.enabled).lower()),
-                ('latched', str(self._stopped).lower()),
+                ('latched', str(self._latch.latched).lower()),
             )
             summaries.append(JointDiagnostic(joint, level, '; '.join(parts) or 'ok', values))
         return summaries
@@ -612,22 +535,13 @@ class Watchdog:
             msg = f'joint {joint!r} is not watched: watched are {", ".join(self._joints)}'
             raise SafetyConfigError(msg) from None
 
-    def _event(self, joint: str, kind: int, severity: int, value: float, limit: float,
-               text: str) -> Event:
-        if severity >= SEVERITY_FATAL:
-            self._stopped = True
-        event = Event(joint, kind, severity, float(value), float(limit), self._stopped, text)
-        if severity >= SEVERITY_FATAL and self._cause is None:
-            self._cause = event
-        return event
-
-    def _once(self, joint: str, state: _Joint, kind: int, severity: int, value: float,
-              limit: float, text: str) -> list[Event]:
+    def _once(self, joint: str, state: _Joint, kind: SafetyKind, severity: Severity,
+              value: float, limit: float, text: str) -> list[Event]:
         """Report a condition when it arises; nothing while it persists."""
         if kind in state.active:
             return []
         state.active.add(kind)
-        return [self._event(joint, kind, severity, value, limit, text)]
+        return [self._latch.event(joint, kind, severity, value, limit, text)]
 
     def _state_age(self, state: _Joint, t: float) -> tuple[float, float, str]:
         """Return the newest state's age [s], the limit it is held to [s], and a description."""
@@ -637,56 +551,57 @@ class Watchdog:
         age, limit = t - state.state_time, state.limits.state_timeout
         return age, limit, f'no state for {age:.3f} s (limit {limit:.3f} s)'
 
-    def _holding(self, t: float) -> list[tuple[str, int, float, float, str]]:
-        """List the fatal conditions that still hold at t, which forbid a reset.
-
-        Each as (joint, kind, value, limit, text).
-        """
+    def _holding(self, t: float) -> list[Condition]:
+        """List the fatal conditions that still hold at t, which forbid a reset."""
         holding = []
         for joint, state in self._joints.items():
             age, limit, what = self._state_age(state, t)
             if age > limit:
-                holding.append((joint, KIND_STALE_STATE, age, limit, f'{joint}: {what}'))
-            elif KIND_SAFETY_VALVE_OPEN in state.active:
+                holding.append(Condition((joint, SafetyKind.STALE_STATE), joint,
+                                         SafetyKind.STALE_STATE, age, limit, f'{joint}: {what}'))
+            elif SafetyKind.SAFETY_VALVE_OPEN in state.active:
                 pressure = max(state.pressure_a, state.pressure_b)
-                holding.append((joint, KIND_SAFETY_VALVE_OPEN, pressure,
-                                state.limits.relief_pressure,
-                                f'{joint}: safety valve still open ({_mpa(pressure)}, '
-                                f'valve mode {state.valve_mode})'))
-            elif KIND_SENSOR_FAULT in state.active:
-                holding.append((joint, KIND_SENSOR_FAULT, math.nan, math.nan,
-                                f'{joint}: sensor fault persists'))
+                holding.append(Condition((joint, SafetyKind.SAFETY_VALVE_OPEN), joint,
+                                         SafetyKind.SAFETY_VALVE_OPEN, pressure,
+                                         state.limits.relief_pressure,
+                                         f'{joint}: safety valve still open ({_mpa(pressure)}, '
+                                         f'valve mode {state.valve_mode})'))
+            elif SafetyKind.SENSOR_FAULT in state.active:
+                holding.append(Condition((joint, SafetyKind.SENSOR_FAULT), joint,
+                                         SafetyKind.SENSOR_FAULT, math.nan, math.nan,
+                                         f'{joint}: sensor fault persists'))
             crowded = sorted((name, found) for name, found in state.sources.items()
                              if len(found) > 1)
             if crowded:
                 name, found = crowded[0]
-                holding.append((joint, KIND_SECOND_SOURCE, len(found), 1.0,
-                                f'{joint}: still {len(found)} publishers on {name} '
-                                f'({", ".join(found)})'))
+                holding.append(Condition((joint, SafetyKind.SECOND_SOURCE), joint,
+                                         SafetyKind.SECOND_SOURCE, len(found), 1.0,
+                                         f'{joint}: still {len(found)} publishers on {name} '
+                                         f'({", ".join(found)})'))
         return holding
 
     def _check_pressure(self, joint: str, state: _Joint) -> list[Event]:
         limits = state.limits
         pressure = max(state.pressure_a, state.pressure_b)
         chamber = 'A' if state.pressure_a >= state.pressure_b else 'B'
-        if pressure >= limits.relief_pressure or state.valve_mode == VALVE_RELIEF:
+        if pressure >= limits.relief_pressure or state.valve_mode == ValveMode.RELIEF:
             events = self._once(
-                joint, state, KIND_SAFETY_VALVE_OPEN, SEVERITY_FATAL, pressure,
+                joint, state, SafetyKind.SAFETY_VALVE_OPEN, Severity.FATAL, pressure,
                 limits.relief_pressure,
                 f'{joint}: safety valve open: chamber {chamber} at {_mpa(pressure)}, relief '
                 f'setting {_mpa(limits.relief_pressure)}, valve mode {state.valve_mode}')
             # The valve event says more: no over-pressure warning beside it.
-            state.active.add(KIND_OVER_PRESSURE)
+            state.active.add(SafetyKind.OVER_PRESSURE)
             return events
-        state.active.discard(KIND_SAFETY_VALVE_OPEN)
+        state.active.discard(SafetyKind.SAFETY_VALVE_OPEN)
         if pressure > limits.warning_pressure:
             return self._once(
-                joint, state, KIND_OVER_PRESSURE, SEVERITY_WARN, pressure,
+                joint, state, SafetyKind.OVER_PRESSURE, Severity.WARN, pressure,
                 limits.warning_pressure,
                 f'{joint}: over-pressure: chamber {chamber} at {_mpa(pressure)}, over the '
                 f'warning threshold {_mpa(limits.warning_pressure)}')
         if pressure < limits.warning_pressure * (1.0 - PRESSURE_HYSTERESIS):
-            state.active.discard(KIND_OVER_PRESSURE)
+            state.active.discard(SafetyKind.OVER_PRESSURE)
         return []
 
     def _check_stroke(self, joint: str, state: _Joint) -> list[Event]:
@@ -699,9 +614,9 @@ class Watchdog:
         else:
             away = limits.stroke_margin + STROKE_HYSTERESIS
             if away < position < limits.stroke - away:
-                state.active.discard(KIND_STROKE_END)
+                state.active.discard(SafetyKind.STROKE_END)
             return []
-        return self._once(joint, state, KIND_STROKE_END, SEVERITY_ERROR, position, end,
+        return self._once(joint, state, SafetyKind.STROKE_END, Severity.ERROR, position, end,
                           f'{joint}: stroke end: position {position * 1e3:.2f} mm within '
                           f'{limits.stroke_margin * 1e3:.2f} mm of the {name} end at '
                           f'{end * 1e3:.1f} mm')
@@ -715,10 +630,10 @@ class Watchdog:
         state.tracking_error = error
         if abs(error) <= limits.tracking_error_limit:
             state.over_limit_since = None
-            state.active.discard(KIND_TRACKING_ERROR)
+            state.active.discard(SafetyKind.TRACKING_ERROR)
             return []
         # A disabled drive does not track (its valve is in free mode); neither does a stop.
-        if self._stopped or not state.enabled:
+        if self._latch.latched or not state.enabled:
             state.over_limit_since = None
             return []
         if state.over_limit_since is None:
@@ -726,7 +641,7 @@ class Watchdog:
         duration = t - state.over_limit_since
         if duration < limits.tracking_error_time:
             return []
-        return self._once(joint, state, KIND_TRACKING_ERROR, SEVERITY_FATAL, abs(error),
+        return self._once(joint, state, SafetyKind.TRACKING_ERROR, Severity.FATAL, abs(error),
                           limits.tracking_error_limit,
                           f'{joint}: tracking error {error:+.3f} rad '
                           f'({math.degrees(error):+.1f} deg) over '
@@ -751,6 +666,6 @@ def _sensor_fault(limits: SafetyLimits, position: float, pressure_a: float, pres
         if value < MIN_GAUGE_PRESSURE:
             return value, MIN_GAUGE_PRESSURE, (f'{name} {_mpa(value)} below '
                                                f'{_mpa(MIN_GAUGE_PRESSURE)} gauge')
-    if valve_mode not in (VALVE_FREE, VALVE_ASSIST, VALVE_RELIEF):
-        return float(valve_mode), float(VALVE_RELIEF), f'unknown valve mode {valve_mode}'
+    if valve_mode not in (ValveMode.FREE, ValveMode.ASSIST, ValveMode.RELIEF):
+        return float(valve_mode), float(ValveMode.RELIEF), f'unknown valve mode {valve_mode}'
     return None

@@ -33,6 +33,7 @@ from std_msgs.msg import Empty
 
 from exo_has_driver import safety
 from exo_has_driver.errors import SafetyConfigError
+from exo_has_driver.events import Event, Severity
 from exo_has_driver.node_parameters import checked_joints, joint_type_parameters
 from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
 from exo_has_runtime.execution import run_node
@@ -276,7 +277,7 @@ class Watchdog(Node):
             for summary in core.diagnostics(t)]
         self._diagnostics_publisher.publish(array)
 
-    def _emit(self, now: Time, events: list[safety.Event]) -> None:
+    def _emit(self, now: Time, events: list[Event]) -> None:
         """Publish and log events; a fatal one sends the stop commands at once."""
         for event in events:
             message = SafetyEvent(joint=event.joint, kind=event.kind, severity=event.severity,
@@ -284,13 +285,13 @@ class Watchdog(Node):
                                   text=event.text)
             message.header.stamp = now.to_msg()
             self._event_publisher.publish(message)
-            if event.severity >= safety.SEVERITY_ERROR:
+            if event.severity >= Severity.ERROR:
                 self.get_logger().error(event.text)
-            elif event.severity == safety.SEVERITY_WARN:
+            elif event.severity == Severity.WARN:
                 self.get_logger().warning(event.text)
             else:
                 self.get_logger().info(event.text)
-        if any(event.severity == safety.SEVERITY_FATAL for event in events):
+        if any(event.severity == Severity.FATAL for event in events):
             self._send_stop(now)
 
     def _send_stop(self, now: Time) -> None:

@@ -9,7 +9,6 @@ import can
 import pytest
 
 from exo_has_driver import can_dictionary as cd
-from exo_has_driver import safety
 from exo_has_driver.devices.rig import Rig
 from exo_has_driver.errors import (
     CanBusError,
@@ -17,6 +16,7 @@ from exo_has_driver.errors import (
     CanOpenTimeoutError,
     HardwareConfigError,
 )
+from exo_has_driver.events import SafetyKind, Severity
 from exo_has_driver.hardware import cia402
 from exo_has_driver.hardware.master import (
     JointConfig,
@@ -25,6 +25,7 @@ from exo_has_driver.hardware.master import (
     infer_valve_mode,
 )
 from exo_has_sim.parameters import load_parameters
+from exo_has_sim.valve import ValveMode
 
 JOINTS = ('left_hip', 'left_knee', 'right_hip', 'right_knee')
 PARAMS = {kind: load_parameters(kind) for kind in ('hip', 'knee')}
@@ -112,12 +113,12 @@ class Setup:
         self.pump()
         return until() if until is not None else None
 
-    def event_of(self, kind, severity=safety.SEVERITY_FATAL):
+    def event_of(self, kind, severity=Severity.FATAL):
         """Return the first event of a kind and severity so far, or None."""
         return next((e for e in self.events if e.kind == kind and e.severity == severity),
                     None)
 
-    def wait_event(self, kind, severity=safety.SEVERITY_FATAL, commands=None):
+    def wait_event(self, kind, severity=Severity.FATAL, commands=None):
         """Run until an event of a kind and severity came; return it."""
         assert self.run(WAIT, lambda: self.event_of(kind, severity) is not None, commands), \
             f'no event of kind {kind}; got {[e.text for e in self.events]}'
@@ -183,7 +184,7 @@ def test_a_command_turns_the_motor_and_each_state_reports_it(setup):
         assert last.motor_speed_command == pytest.approx(speed, abs=quantum)
         assert last.motor_speed == pytest.approx(speed, abs=1.0)
         assert last.drive_state == cia402.OPERATION_ENABLED
-        assert last.valve_mode == safety.VALVE_ASSIST
+        assert last.valve_mode == ValveMode.ASSIST
         assert not last.sensor_fault
         plant = setup.rig.joint(joint).plant.sample()
         # The rig's plant moved on since the sample by at most a few SYNCs at ~0.03 m/s.
@@ -207,7 +208,7 @@ def test_a_disable_command_switches_the_drive_off_and_the_valve_to_free(setup):
     assert last.drive_state == cia402.SWITCHED_ON
     assert last.motor_speed_command == 0.0
     assert abs(last.motor_speed) < 0.5
-    assert last.valve_mode == safety.VALVE_FREE
+    assert last.valve_mode == ValveMode.FREE
     assert setup.rig_states()['left_hip'] == 'operation enabled'
     assert setup.events == []
 
@@ -230,7 +231,7 @@ def test_an_e_stop_quick_stops_every_drive_latches_and_a_reset_enables_them_agai
     assert setup.rig.joint('left_hip').plant.sample().motor_speed == pytest.approx(150.0,
                                                                                    abs=2.0)
     setup.master.request_stop('watchdog: tracking error')
-    event = setup.wait_event(safety.KIND_E_STOP, commands=commands)
+    event = setup.wait_event(SafetyKind.E_STOP, commands=commands)
     assert (event.joint, event.latched) == ('', True)
     assert 'watchdog: tracking error' in event.text
     assert setup.run(WAIT, lambda: setup.rig_states() == dict.fromkeys(
@@ -242,7 +243,7 @@ def test_an_e_stop_quick_stops_every_drive_latches_and_a_reset_enables_them_agai
     assert all(s.motor_speed_command == 0.0 for s in setup.samples[-8:])
     setup.events.clear()
     setup.master.request_reset()
-    event = setup.wait_event(safety.KIND_RESET, safety.SEVERITY_INFO)
+    event = setup.wait_event(SafetyKind.RESET, Severity.INFO)
     assert not event.latched
     assert 'latched by emergency stop: watchdog: tracking error' in event.text
     assert setup.run(WAIT, lambda: setup.rig_states() == dict.fromkeys(
@@ -254,7 +255,7 @@ def test_an_e_stop_quick_stops_every_drive_latches_and_a_reset_enables_them_agai
 
 def test_a_reset_without_a_latched_stop_says_so(setup):
     setup.master.request_reset()
-    event = setup.wait_event(safety.KIND_RESET, safety.SEVERITY_INFO)
+    event = setup.wait_event(SafetyKind.RESET, Severity.INFO)
     assert event.text == 'reset: no stop was latched'
 
 
@@ -280,15 +281,15 @@ def inject_silent_bus(rig):
 
 FAULTS = {
     # name: (injection, kind, joint, value, limit, reset refused while it holds)
-    'drive fault': (inject_drive_fault, safety.KIND_DRIVE_FAULT, 'left_knee', 0x4310, math.nan,
+    'drive fault': (inject_drive_fault, SafetyKind.DRIVE_FAULT, 'left_knee', 0x4310, math.nan,
                     True),
-    'lost heartbeat': (inject_lost_heartbeat, safety.KIND_HEARTBEAT_LOST, 'right_hip', None,
+    'lost heartbeat': (inject_lost_heartbeat, SafetyKind.HEARTBEAT_LOST, 'right_hip', None,
                        0.15, True),
-    'sensor NaN': (inject_sensor_nan, safety.KIND_SENSOR_FAULT, 'left_hip', math.nan,
+    'sensor NaN': (inject_sensor_nan, SafetyKind.SENSOR_FAULT, 'left_hip', math.nan,
                    math.nan, True),
-    'sensor out of range': (inject_sensor_out_of_range, safety.KIND_SENSOR_FAULT, 'right_knee',
+    'sensor out of range': (inject_sensor_out_of_range, SafetyKind.SENSOR_FAULT, 'right_knee',
                             PARAMS['knee'].stroke + 5e-3, PARAMS['knee'].stroke + 1e-3, True),
-    'silent bus': (inject_silent_bus, safety.KIND_BUS_OFF, None, math.nan, math.nan, True),
+    'silent bus': (inject_silent_bus, SafetyKind.BUS_OFF, None, math.nan, math.nan, True),
 }
 
 
@@ -322,11 +323,11 @@ def test_each_fault_stops_every_motor_latches_and_a_reset_after_it_clears_releas
         count = len(setup.events)
         setup.master.request_reset()
         assert setup.run(WAIT, lambda: any(
-            e.severity == safety.SEVERITY_WARN for e in setup.events[count:]), commands)
-        warning = next(e for e in setup.events[count:] if e.severity == safety.SEVERITY_WARN)
+            e.severity == Severity.WARN for e in setup.events[count:]), commands)
+        warning = next(e for e in setup.events[count:] if e.severity == Severity.WARN)
         assert warning.latched and warning.text.startswith('reset refused: ')
         assert setup.master.latched
-        assert not any(e.kind == safety.KIND_RESET for e in setup.events[count:])
+        assert not any(e.kind == SafetyKind.RESET for e in setup.events[count:])
         # Nothing moved meanwhile: no drive was enabled again.
         assert setup.run(0.3, lambda: any(state == 'operation enabled'
                                           for state in setup.rig_states().values()),
@@ -337,10 +338,10 @@ def test_each_fault_stops_every_motor_latches_and_a_reset_after_it_clears_releas
     count = len(setup.events)
     setup.master.request_reset()
     assert setup.run(WAIT, lambda: any(
-        e.kind == safety.KIND_RESET for e in setup.events[count:]), commands), \
+        e.kind == SafetyKind.RESET for e in setup.events[count:]), commands), \
         [e.text for e in setup.events[count:]]
-    reset = next(e for e in setup.events[count:] if e.kind == safety.KIND_RESET)
-    assert (reset.severity, reset.latched) == (safety.SEVERITY_INFO, False)
+    reset = next(e for e in setup.events[count:] if e.kind == SafetyKind.RESET)
+    assert (reset.severity, reset.latched) == (Severity.INFO, False)
     assert setup.run(WAIT, lambda: setup.rig_states() == dict.fromkeys(
         JOINTS, 'operation enabled'), commands), setup.rig_states()
     setup.run(0.3, commands=commands)
@@ -361,7 +362,7 @@ def test_a_bus_fault_stops_and_latches_until_the_bus_recovers(breakage):
             bus.fake_state = can.BusState.PASSIVE
         else:
             bus.fail_sends = True
-        event = setup.wait_event(safety.KIND_BUS_OFF, commands=commands)
+        event = setup.wait_event(SafetyKind.BUS_OFF, commands=commands)
         assert event.latched
         expected = 'error passive' if breakage == 'error passive' else 'failed'
         assert expected in event.text
@@ -371,14 +372,14 @@ def test_a_bus_fault_stops_and_latches_until_the_bus_recovers(breakage):
         count = len(setup.events)
         setup.master.request_reset()
         assert setup.run(WAIT, lambda: any(
-            e.severity == safety.SEVERITY_WARN for e in setup.events[count:]), commands)
+            e.severity == Severity.WARN for e in setup.events[count:]), commands)
         bus.fake_state = can.BusState.ACTIVE
         bus.fail_sends = False
         setup.run(0.4, commands=commands)
         count = len(setup.events)
         setup.master.request_reset()
         assert setup.run(WAIT, lambda: any(
-            e.kind == safety.KIND_RESET for e in setup.events[count:]), commands)
+            e.kind == SafetyKind.RESET for e in setup.events[count:]), commands)
         assert setup.run(WAIT, lambda: setup.rig_states() == dict.fromkeys(
             JOINTS, 'operation enabled'), commands)
     finally:
@@ -439,14 +440,14 @@ def test_the_configuration_refuses_shared_node_ids_and_bad_times():
 def test_the_valve_mode_is_inferred_from_pressure_speed_and_drive_state():
     hip = joint_config('left_hip')  # relief 18 MPa, drop 0.2 MPa, release 0.5 rad/s
     enabled, off = cia402.OPERATION_ENABLED, cia402.SWITCH_ON_DISABLED
-    assert infer_valve_mode(hip, enabled, 50.0, 18.0e6, 0.0) == safety.VALVE_RELIEF
-    assert infer_valve_mode(hip, off, 0.0, 0.0, 18.5e6) == safety.VALVE_RELIEF
-    assert infer_valve_mode(hip, off, 50.0, 5.0e6, 0.0) == safety.VALVE_FREE
-    assert infer_valve_mode(hip, enabled, 0.1, 0.1e6, 0.0) == safety.VALVE_FREE
+    assert infer_valve_mode(hip, enabled, 50.0, 18.0e6, 0.0) == ValveMode.RELIEF
+    assert infer_valve_mode(hip, off, 0.0, 0.0, 18.5e6) == ValveMode.RELIEF
+    assert infer_valve_mode(hip, off, 50.0, 5.0e6, 0.0) == ValveMode.FREE
+    assert infer_valve_mode(hip, enabled, 0.1, 0.1e6, 0.0) == ValveMode.FREE
     # Stopped but loaded: the system pressure holds the spools in assist.
-    assert infer_valve_mode(hip, enabled, 0.1, 2.0e6, 0.0) == safety.VALVE_ASSIST
-    assert infer_valve_mode(hip, enabled, 30.0, 0.1e6, 0.0) == safety.VALVE_ASSIST
-    assert infer_valve_mode(hip, enabled, -30.0, 17.9e6, 0.0) == safety.VALVE_ASSIST
+    assert infer_valve_mode(hip, enabled, 0.1, 2.0e6, 0.0) == ValveMode.ASSIST
+    assert infer_valve_mode(hip, enabled, 30.0, 0.1e6, 0.0) == ValveMode.ASSIST
+    assert infer_valve_mode(hip, enabled, -30.0, 17.9e6, 0.0) == ValveMode.ASSIST
 
 
 def test_a_drive_sent_out_of_operational_is_started_again_and_quick_stopped(setup):
@@ -461,7 +462,7 @@ def test_a_drive_sent_out_of_operational_is_started_again_and_quick_stopped(setu
                                data=bytes((cd.NMT_ENTER_PRE_OPERATIONAL, drive.node_id))))
     finally:
         other.shutdown()
-    event = setup.wait_event(safety.KIND_HEARTBEAT_LOST, commands=commands)
+    event = setup.wait_event(SafetyKind.HEARTBEAT_LOST, commands=commands)
     assert event.joint == 'left_hip' and 'pre-operational' in event.text
     # The master starts it again, so that its quick stop applies: the motor stops.
     assert setup.run(WAIT, lambda: drive.nmt_state == cd.NMT_OPERATIONAL
@@ -470,7 +471,7 @@ def test_a_drive_sent_out_of_operational_is_started_again_and_quick_stopped(setu
     # Its heartbeat reports operational within a producer period; until then resets fail.
     count = len(setup.events)
     deadline = time.monotonic() + WAIT
-    while not any(e.kind == safety.KIND_RESET for e in setup.events[count:]):
+    while not any(e.kind == SafetyKind.RESET for e in setup.events[count:]):
         assert time.monotonic() < deadline, [e.text for e in setup.events[count:]]
         setup.master.request_reset()
         setup.run(0.2, commands=commands)
@@ -483,7 +484,7 @@ def test_a_drive_leaving_operation_enabled_by_itself_latches_a_drive_fault(setup
     drive = setup.rig.joint('right_hip').drive
     with setup.rig._lock:
         drive._enter('switch on disabled')  # no EMCY, no fault: it just dropped out
-    event = setup.wait_event(safety.KIND_DRIVE_FAULT, commands=commands)
+    event = setup.wait_event(SafetyKind.DRIVE_FAULT, commands=commands)
     assert event.joint == 'right_hip'
     assert 'left operation enabled for switch on disabled by itself' in event.text
     assert setup.run(WAIT, setup.motors_stopped, commands)
@@ -494,7 +495,7 @@ def test_a_drive_in_fault_without_emcy_right_after_the_start_is_not_reset_silent
     drive = setup.rig.joint('left_knee').drive
     with setup.rig._lock:
         drive._enter('fault')  # within the old 110 ms fault reset window, no EMCY
-    event = setup.wait_event(safety.KIND_DRIVE_FAULT)
+    event = setup.wait_event(SafetyKind.DRIVE_FAULT)
     assert event.joint == 'left_knee'
     assert event.text == ('left_knee drive (node 2) in fault (no EMCY received since it '
                           'entered fault)')
@@ -520,7 +521,7 @@ def test_one_failed_receive_latches_a_bus_fault_and_the_master_keeps_running():
         commands = dict.fromkeys(JOINTS, (50.0, True))
         setup.run(0.2, commands=commands)
         setup.master.bus.fail_receives = 1
-        event = setup.wait_event(safety.KIND_BUS_OFF, commands=commands)
+        event = setup.wait_event(SafetyKind.BUS_OFF, commands=commands)
         assert 'receiving from the CAN bus failed: could not unpack' in event.text
         setup.run(0.3, commands=commands)
         assert setup.master.running
@@ -529,7 +530,7 @@ def test_one_failed_receive_latches_a_bus_fault_and_the_master_keeps_running():
         setup.run(1.0, commands=commands)
         count = len(setup.events)
         setup.master.request_reset()
-        assert setup.run(WAIT, lambda: any(e.kind == safety.KIND_RESET
+        assert setup.run(WAIT, lambda: any(e.kind == SafetyKind.RESET
                                            for e in setup.events[count:]), commands), \
             [e.text for e in setup.events[count:]]
         assert setup.run(WAIT, lambda: setup.rig_states() == dict.fromkeys(
@@ -619,7 +620,7 @@ def test_a_slave_that_rebooted_while_running_refuses_every_reset_until_the_resta
                                data=bytes((cd.NMT_RESET_NODE, 18))))
     finally:
         other.shutdown()
-    event = setup.wait_event(safety.KIND_HEARTBEAT_LOST)
+    event = setup.wait_event(SafetyKind.HEARTBEAT_LOST)
     assert event.text == ('left_knee sensor board (node 18): booted (boot-up message) while '
                           'running: its configuration is lost, restart the driver')
     # The latch starts it again (its TPDOs flow), but its configuration is the default one.
@@ -628,8 +629,8 @@ def test_a_slave_that_rebooted_while_running_refuses_every_reset_until_the_resta
     setup.run(0.3)
     count = len(setup.events)
     setup.master.request_reset()
-    assert setup.run(WAIT, lambda: any(e.severity == safety.SEVERITY_WARN
+    assert setup.run(WAIT, lambda: any(e.severity == Severity.WARN
                                        for e in setup.events[count:]))
-    warning = next(e for e in setup.events[count:] if e.severity == safety.SEVERITY_WARN)
+    warning = next(e for e in setup.events[count:] if e.severity == Severity.WARN)
     assert 'restart the driver' in warning.text
     assert setup.master.latched

@@ -6,27 +6,12 @@ from diagnostic_msgs.msg import DiagnosticStatus
 
 from exo_has_driver import safety
 from exo_has_driver.errors import SafetyConfigError
+from exo_has_driver.events import SafetyKind, Severity
 from exo_has_driver.safety import (
-    KIND_INVALID_COMMAND,
-    KIND_OVER_PRESSURE,
-    KIND_RESET,
-    KIND_SAFETY_VALVE_OPEN,
-    KIND_SECOND_SOURCE,
-    KIND_SENSOR_FAULT,
-    KIND_STALE_COMMAND,
-    KIND_STALE_STATE,
-    KIND_STROKE_END,
-    KIND_TRACKING_ERROR,
     LEVEL_ERROR,
     LEVEL_OK,
     LEVEL_STALE,
     LEVEL_WARN,
-    SEVERITY_ERROR,
-    SEVERITY_FATAL,
-    SEVERITY_INFO,
-    SEVERITY_WARN,
-    VALVE_ASSIST,
-    VALVE_RELIEF,
     SafetyLimits,
     Watchdog,
 )
@@ -34,6 +19,7 @@ from exo_has_msgs.msg import HasState, SafetyEvent
 from exo_has_runtime.joints import JOINT_NAMES
 from exo_has_sim.kinematics import Linkage
 from exo_has_sim.parameters import load_parameters
+from exo_has_sim.valve import ValveMode
 
 PARAMS = {'hip': load_parameters('hip'), 'knee': load_parameters('knee')}
 LINKAGE = {kind: Linkage.from_parameters(params) for kind, params in PARAMS.items()}
@@ -53,7 +39,7 @@ def make_watchdog(start=0.0, **options):
 
 
 def feed(watchdog, t, skip=(), position=MID, pressure_a=5.0e6, pressure_b=1.0e6,
-         valve_mode=VALVE_ASSIST):
+         valve_mode=ValveMode.ASSIST):
     """Send one period of normal states and enabled commands, then check; return the events."""
     events = []
     for joint in JOINT_NAMES:
@@ -77,13 +63,16 @@ def only(events):
 
 
 def test_kinds_severities_valve_modes_and_levels_are_numbered_as_the_messages():
-    for name in dir(SafetyEvent):
-        if name.startswith(('KIND_', 'SEVERITY_')):
-            assert getattr(safety, name) == getattr(SafetyEvent, name), name
-    assert set(safety.KIND_NAMES) == {getattr(SafetyEvent, n) for n in dir(SafetyEvent)
-                                      if n.startswith('KIND_')}
-    for name in ('VALVE_FREE', 'VALVE_ASSIST', 'VALVE_RELIEF'):
-        assert getattr(safety, name) == getattr(HasState, name)
+    def constants(message, prefix):
+        return {name[len(prefix):]: getattr(message, name) for name in dir(message)
+                if name.startswith(prefix)}
+    # Both ways: every constant has its member and every member its constant, of one value.
+    assert {kind.name: kind.value for kind in SafetyKind} == constants(SafetyEvent, 'KIND_')
+    assert {s.name: s.value for s in Severity} == constants(SafetyEvent, 'SEVERITY_')
+    assert {mode.name: mode.value for mode in ValveMode} == constants(HasState, 'VALVE_')
+    assert SafetyKind.SAFETY_VALVE_OPEN.label == 'safety valve open'
+    assert SafetyKind.OVER_PRESSURE.label == 'over-pressure'
+    assert SafetyKind.E_STOP.label == 'emergency stop'
     # The core's levels are ints; the message's byte constants are one byte each in rclpy.
     for name in ('OK', 'WARN', 'ERROR', 'STALE'):
         assert bytes([getattr(safety, f'LEVEL_{name}')]) == getattr(DiagnosticStatus, name)
@@ -117,7 +106,7 @@ def test_an_unknown_joint_is_refused_naming_the_watched_ones():
     watchdog = make_watchdog()
     with pytest.raises(SafetyConfigError, match="'left_ankle' is not watched: watched are "
                                                 'left_hip, left_knee'):
-        watchdog.on_state('left_ankle', 0.0, MID, 0.0, 0.0, VALVE_ASSIST)
+        watchdog.on_state('left_ankle', 0.0, MID, 0.0, 0.0, ValveMode.ASSIST)
 
 
 def test_a_plausible_squatting_session_raises_no_event():
@@ -135,7 +124,7 @@ def test_a_plausible_squatting_session_raises_no_event():
             angle = reference(joint, t - 0.03) + offset[joint.split('_')[0]]
             position = float(LINKAGE[kind_of(joint)].position(angle))
             pressure = 8.0e6 + 6.0e6 * math.sin(2.0 * math.pi * 0.5 * t)
-            events += watchdog.on_state(joint, t, position, pressure, 0.3e6, VALVE_ASSIST)
+            events += watchdog.on_state(joint, t, position, pressure, 0.3e6, ValveMode.ASSIST)
             events += watchdog.on_command(joint, t, 150.0 * math.sin(math.pi * t), True)
         events += watchdog.check(t)
     assert events == []
@@ -143,16 +132,16 @@ def test_a_plausible_squatting_session_raises_no_event():
 
 
 @pytest.mark.parametrize(('pressure_a', 'pressure_b', 'valve_mode', 'value'), [
-    (RELIEF, 1.0e6, VALVE_ASSIST, RELIEF),
-    (0.2e6, 18.3e6, VALVE_ASSIST, 18.3e6),
-    (12.0e6, 0.5e6, VALVE_RELIEF, 12.0e6),
+    (RELIEF, 1.0e6, ValveMode.ASSIST, RELIEF),
+    (0.2e6, 18.3e6, ValveMode.ASSIST, 18.3e6),
+    (12.0e6, 0.5e6, ValveMode.RELIEF, 12.0e6),
 ])
 def test_an_open_safety_valve_is_fatal_once_and_latches(pressure_a, pressure_b, valve_mode,
                                                          value):
     watchdog, t = running()
     event = only(watchdog.on_state('left_knee', t, MID, pressure_a, pressure_b, valve_mode))
-    assert (event.joint, event.kind, event.severity) == ('left_knee', KIND_SAFETY_VALVE_OPEN,
-                                                         SEVERITY_FATAL)
+    assert (event.joint, event.kind, event.severity) == ('left_knee', SafetyKind.SAFETY_VALVE_OPEN,
+                                                         Severity.FATAL)
     assert (event.value, event.limit, event.latched) == (value, RELIEF, True)
     assert 'safety valve open' in event.text and watchdog.stopped
     assert watchdog.cause == event
@@ -164,11 +153,11 @@ def test_an_open_safety_valve_is_fatal_once_and_latches(pressure_a, pressure_b, 
 def test_over_pressure_warns_once_and_again_only_after_it_has_cleared():
     watchdog, t = running()
     pressures = [16.5e6, 16.6e6, 16.0e6, 17.0e6, 15.0e6, 16.4e6]
-    raised = [watchdog.on_state('right_hip', t + i * PERIOD, MID, p, 0.0, VALVE_ASSIST)
+    raised = [watchdog.on_state('right_hip', t + i * PERIOD, MID, p, 0.0, ValveMode.ASSIST)
               for i, p in enumerate(pressures)]
     assert [len(events) for events in raised] == [1, 0, 0, 0, 0, 1]
     event = raised[0][0]
-    assert (event.kind, event.severity, event.value) == (KIND_OVER_PRESSURE, SEVERITY_WARN,
+    assert (event.kind, event.severity, event.value) == (SafetyKind.OVER_PRESSURE, Severity.WARN,
                                                          16.5e6)
     assert event.limit == pytest.approx(0.9 * RELIEF) and not event.latched
     assert not watchdog.stopped
@@ -177,11 +166,11 @@ def test_over_pressure_warns_once_and_again_only_after_it_has_cleared():
 def test_reaching_a_stroke_end_is_an_error_once_per_entry():
     watchdog, t = running()
     positions = [0.1297, 0.1299, 0.1298, 0.12, 0.0004, 0.0001, 0.05]
-    raised = [watchdog.on_state('left_hip', t + i * PERIOD, x, 5.0e6, 1.0e6, VALVE_ASSIST)
+    raised = [watchdog.on_state('left_hip', t + i * PERIOD, x, 5.0e6, 1.0e6, ValveMode.ASSIST)
               for i, x in enumerate(positions)]
     assert [len(events) for events in raised] == [1, 0, 0, 0, 1, 0, 0]
     extended, retracted = raised[0][0], raised[4][0]
-    assert (extended.kind, extended.severity) == (KIND_STROKE_END, SEVERITY_ERROR)
+    assert (extended.kind, extended.severity) == (SafetyKind.STROKE_END, Severity.ERROR)
     assert (extended.value, extended.limit) == (0.1297, 0.13)
     assert (retracted.value, retracted.limit) == (0.0004, 0.0)
     assert not watchdog.stopped
@@ -194,7 +183,7 @@ def tracking_states(watchdog, joint, start, duration, error):
     events = []
     for t in np.arange(start, start + duration, PERIOD):
         events += watchdog.on_reference(t, {joint: reference})
-        events += watchdog.on_state(joint, t, position, 5.0e6, 1.0e6, VALVE_ASSIST)
+        events += watchdog.on_state(joint, t, position, 5.0e6, 1.0e6, ValveMode.ASSIST)
     return events
 
 
@@ -203,8 +192,8 @@ def test_a_tracking_error_over_the_limit_is_fatal_only_when_it_persists():
     assert tracking_states(watchdog, 'right_knee', t, 0.15, 0.4) == []  # too short
     assert tracking_states(watchdog, 'right_knee', t + 0.15, 0.05, 0.1) == []  # back in
     event = only(tracking_states(watchdog, 'right_knee', t + 0.2, 0.5, -0.4))
-    assert (event.joint, event.kind, event.severity) == ('right_knee', KIND_TRACKING_ERROR,
-                                                         SEVERITY_FATAL)
+    assert (event.joint, event.kind, event.severity) == ('right_knee', SafetyKind.TRACKING_ERROR,
+                                                         Severity.FATAL)
     assert event.value == pytest.approx(0.4)
     assert event.limit == pytest.approx(math.radians(20.0))
     assert 'for 0.200 s' in event.text and event.latched
@@ -224,11 +213,12 @@ def test_a_joint_whose_node_died_goes_stale_once():
         events += feed(watchdog, t + step * PERIOD, skip=('left_hip',))
     stale_state, stale_command = events
     assert (stale_state.joint, stale_state.kind, stale_state.severity) == (
-        'left_hip', KIND_STALE_STATE, SEVERITY_FATAL)
+        'left_hip', SafetyKind.STALE_STATE, Severity.FATAL)
     assert stale_state.limit == pytest.approx(0.05)
     assert 0.05 < stale_state.value <= 0.05 + PERIOD + 1e-9
     assert stale_state.latched and watchdog.stopped
-    assert stale_command.kind == KIND_STALE_COMMAND  # in the same check: not yet stopped then
+    # In the same check: not yet stopped then.
+    assert stale_command.kind == SafetyKind.STALE_COMMAND
 
 
 def test_nothing_at_all_within_the_startup_grace_is_stale():
@@ -236,7 +226,7 @@ def test_nothing_at_all_within_the_startup_grace_is_stale():
     assert watchdog.check(101.9) == []
     events = watchdog.check(102.1)
     assert {(e.joint, e.kind) for e in events} == {
-        (j, k) for j in JOINT_NAMES for k in (KIND_STALE_STATE, KIND_STALE_COMMAND)}
+        (j, k) for j in JOINT_NAMES for k in (SafetyKind.STALE_STATE, SafetyKind.STALE_COMMAND)}
     assert events[0].value == pytest.approx(2.1) and events[0].limit == 2.0
     assert watchdog.check(102.2) == []
 
@@ -245,17 +235,17 @@ def test_nothing_at_all_within_the_startup_grace_is_stale():
 def test_a_nan_or_infinite_command_is_an_invalid_command(speed):
     watchdog, t = running()
     event = only(watchdog.on_command('right_knee', t, speed, True))
-    assert (event.kind, event.severity, event.latched) == (KIND_INVALID_COMMAND,
-                                                          SEVERITY_FATAL, True)
+    assert (event.kind, event.severity, event.latched) == (SafetyKind.INVALID_COMMAND,
+                                                          Severity.FATAL, True)
     assert math.isnan(event.limit) and (event.value == speed or math.isnan(event.value))
 
 
 @pytest.mark.parametrize(('position', 'pressure_a', 'pressure_b', 'valve_mode', 'limit'), [
-    (math.nan, 5.0e6, 1.0e6, VALVE_ASSIST, math.nan),
-    (MID, math.inf, 1.0e6, VALVE_ASSIST, math.nan),
-    (MID, 5.0e6, math.nan, VALVE_ASSIST, math.nan),
-    (0.14, 5.0e6, 1.0e6, VALVE_ASSIST, 0.132),
-    (MID, -0.5e6, 1.0e6, VALVE_ASSIST, -0.12e6),
+    (math.nan, 5.0e6, 1.0e6, ValveMode.ASSIST, math.nan),
+    (MID, math.inf, 1.0e6, ValveMode.ASSIST, math.nan),
+    (MID, 5.0e6, math.nan, ValveMode.ASSIST, math.nan),
+    (0.14, 5.0e6, 1.0e6, ValveMode.ASSIST, 0.132),
+    (MID, -0.5e6, 1.0e6, ValveMode.ASSIST, -0.12e6),
     (MID, 5.0e6, 1.0e6, 7, 2.0),
 ])
 def test_an_impossible_state_value_is_a_sensor_fault(position, pressure_a, pressure_b,
@@ -263,7 +253,7 @@ def test_an_impossible_state_value_is_a_sensor_fault(position, pressure_a, press
     watchdog, t = running()
     event = only(watchdog.on_state('left_knee', t, position, pressure_a, pressure_b,
                                    valve_mode))
-    assert (event.kind, event.severity) == (KIND_SENSOR_FAULT, SEVERITY_FATAL)
+    assert (event.kind, event.severity) == (SafetyKind.SENSOR_FAULT, Severity.FATAL)
     assert event.limit == pytest.approx(limit, nan_ok=True)
     assert watchdog.on_state('left_knee', t, position, pressure_a, pressure_b,
                              valve_mode) == []
@@ -278,26 +268,26 @@ def test_while_stopped_commands_are_ignored_but_new_fatal_conditions_are_reporte
         events += feed(watchdog, t + step * PERIOD, skip=JOINT_NAMES)
         for joint in JOINT_NAMES:
             events += watchdog.on_state(joint, t + step * PERIOD, MID, 5.0e6, 1.0e6,
-                                        VALVE_ASSIST)
+                                        ValveMode.ASSIST)
     assert events == []
-    event = only(watchdog.on_state('right_hip', t + 0.5, MID, RELIEF, 0.0, VALVE_RELIEF))
-    assert event.kind == KIND_SAFETY_VALVE_OPEN and event.latched
-    assert watchdog.cause.kind == KIND_INVALID_COMMAND  # the first cause is kept
+    event = only(watchdog.on_state('right_hip', t + 0.5, MID, RELIEF, 0.0, ValveMode.RELIEF))
+    assert event.kind == SafetyKind.SAFETY_VALVE_OPEN and event.latched
+    assert watchdog.cause.kind == SafetyKind.INVALID_COMMAND  # the first cause is kept
 
 
 def test_a_reset_is_refused_while_a_fatal_condition_holds_and_releases_the_latch_after():
     watchdog, t = running()
-    only(watchdog.on_state('left_knee', t, MID, RELIEF, 0.0, VALVE_RELIEF))
+    only(watchdog.on_state('left_knee', t, MID, RELIEF, 0.0, ValveMode.RELIEF))
     refused = only(watchdog.reset(t + 0.001))
     assert (refused.joint, refused.kind, refused.severity, refused.latched) == (
-        'left_knee', KIND_SAFETY_VALVE_OPEN, SEVERITY_WARN, True)  # not RESET: nothing released
+        'left_knee', SafetyKind.SAFETY_VALVE_OPEN, Severity.WARN, True)  # not RESET: none released
     assert (refused.value, refused.limit) == (RELIEF, RELIEF)
     assert 'reset refused: left_knee: safety valve still open' in refused.text
     assert watchdog.stopped
     assert feed(watchdog, t + 0.002) == []  # the pressure is down again
     released = only(watchdog.reset(t + 0.003))
     assert (released.joint, released.kind, released.severity, released.latched) == (
-        '', KIND_RESET, SEVERITY_INFO, False)
+        '', SafetyKind.RESET, Severity.INFO, False)
     assert 'stop released (latched by left_knee: safety valve open' in released.text
     assert not watchdog.stopped and watchdog.cause is None
     assert math.isnan(released.value) and math.isnan(released.limit)
@@ -308,40 +298,40 @@ def test_a_reset_is_refused_while_a_joint_is_still_stale():
     events = []
     for step in range(20):
         events += feed(watchdog, t + step * PERIOD, skip=('right_knee',))
-    assert {e.kind for e in events} == {KIND_STALE_STATE, KIND_STALE_COMMAND}
+    assert {e.kind for e in events} == {SafetyKind.STALE_STATE, SafetyKind.STALE_COMMAND}
     refused = only(watchdog.reset(t + 0.1))
-    assert (refused.joint, refused.kind, refused.severity) == ('right_knee', KIND_STALE_STATE,
-                                                               SEVERITY_WARN)
+    assert (refused.joint, refused.kind, refused.severity) == (
+        'right_knee', SafetyKind.STALE_STATE, Severity.WARN)
     assert refused.value == pytest.approx(0.105) and refused.limit == 0.05  # since 0.095 s
     assert 'reset refused: right_knee: no state for 0.1' in refused.text
     assert feed(watchdog, t + 0.101) == []
-    assert only(watchdog.reset(t + 0.102)).severity == SEVERITY_INFO
+    assert only(watchdog.reset(t + 0.102)).severity == Severity.INFO
 
 
 def test_after_a_reset_commands_have_the_startup_grace_again_and_are_checked():
     watchdog, t = running(startup_grace=1.0)
     only(watchdog.on_command('left_hip', t, math.nan, True))
-    assert only(watchdog.reset(t + 0.01)).severity == SEVERITY_INFO
+    assert only(watchdog.reset(t + 0.01)).severity == Severity.INFO
     for step in range(1, 150):  # controllers take 0.75 s to come back: within the grace
         at = t + 0.01 + step * PERIOD
         for joint in JOINT_NAMES:
-            assert watchdog.on_state(joint, at, MID, 5.0e6, 1.0e6, VALVE_ASSIST) == []
+            assert watchdog.on_state(joint, at, MID, 5.0e6, 1.0e6, ValveMode.ASSIST) == []
         assert watchdog.check(at) == []
     assert feed(watchdog, t + 0.8) == []
     event = only(watchdog.on_command('left_hip', t + 0.801, math.nan, True))
-    assert event.kind == KIND_INVALID_COMMAND
+    assert event.kind == SafetyKind.INVALID_COMMAND
 
 
 def test_a_reset_without_a_latched_stop_says_so():
     watchdog, t = running()
     event = only(watchdog.reset(t))
-    assert (event.kind, event.severity, event.latched) == (KIND_RESET, SEVERITY_INFO, False)
+    assert (event.kind, event.severity, event.latched) == (SafetyKind.RESET, Severity.INFO, False)
     assert event.text == 'reset: no stop was latched'
 
 
 def test_diagnostics_give_each_joint_a_level_message_and_values():
     watchdog, t = running()
-    watchdog.on_state('left_knee', t, MID, 16.5e6, 0.0, VALVE_ASSIST)
+    watchdog.on_state('left_knee', t, MID, 16.5e6, 0.0, ValveMode.ASSIST)
     levels = {d.joint: d for d in watchdog.diagnostics(t)}
     assert levels['left_knee'].level == LEVEL_WARN
     assert levels['left_knee'].message == 'over-pressure'
@@ -365,16 +355,16 @@ def test_a_second_publisher_of_a_joints_command_is_fatal_names_both_and_blocks_a
     assert watchdog.on_sources('left_hip', topic, ['/pd_controller']) == []
     event = only(watchdog.on_sources('left_hip', topic, ['/pd_controller', '/rogue']))
     assert (event.joint, event.kind, event.severity, event.value, event.limit, event.latched) \
-        == ('left_hip', KIND_SECOND_SOURCE, SEVERITY_FATAL, 2.0, 1.0, True)
+        == ('left_hip', SafetyKind.SECOND_SOURCE, Severity.FATAL, 2.0, 1.0, True)
     assert '/pd_controller' in event.text and '/rogue' in event.text
     assert watchdog.stopped
     # Reported once while it lasts; a reset is refused until the second publisher is gone.
     assert watchdog.on_sources('left_hip', topic, ['/rogue', '/pd_controller']) == []
     refused = only(watchdog.reset(t))
     assert (refused.kind, refused.severity, refused.latched) == (
-        KIND_SECOND_SOURCE, SEVERITY_WARN, True)
+        SafetyKind.SECOND_SOURCE, Severity.WARN, True)
     assert watchdog.on_sources('left_hip', topic, ['/pd_controller']) == []
-    assert only(watchdog.reset(t)).kind == KIND_RESET
+    assert only(watchdog.reset(t)).kind == SafetyKind.RESET
     assert not watchdog.stopped
 
 

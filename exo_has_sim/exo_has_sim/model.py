@@ -35,6 +35,7 @@ import numpy as np
 from numba import njit
 
 from exo_has_sim.parameters import HasParameters
+from exo_has_sim.valve import ValveMode
 
 # State layout.
 X, V, PA, N, S, VOID = 0, 1, 2, 3, 4, 5
@@ -55,8 +56,9 @@ CAVITATION_TIME_CONSTANT = 1.0e-4  # s, relaxation of the pressure onto the cavi
 VOID_THRESHOLD = 1.0e-10
 AIR_POLYTROPIC_EXPONENT = 1.4
 
-# Valve modes, numbered as exo_has_msgs/msg/HasState.
-VALVE_FREE, VALVE_ASSIST, VALVE_RELIEF = 0, 1, 2
+# Valve modes (exo_has_sim.valve.ValveMode) as plain ints, which the compiled code returns.
+VALVE_FREE, VALVE_ASSIST, VALVE_RELIEF = int(ValveMode.FREE), int(ValveMode.ASSIST), \
+    int(ValveMode.RELIEF)
 
 
 def pack(params: HasParameters) -> np.ndarray:

@@ -32,7 +32,7 @@ false, :attr:`Master.failure` the error). The caller's thread only swaps a comma
 (:meth:`set_command`), appends a request, or pops the queues (:meth:`take_samples`,
 :meth:`take_events`): it never waits on the bus.
 
-Supervision, each a FATAL :class:`~exo_has_driver.safety.Event` that latches the stop:
+Supervision, each a FATAL :class:`~exo_has_driver.Event` that latches the stop:
 a drive in fault or an EMCY, a drive that leaves operation enabled by itself while enabled, a
 statusword of no CiA 402 state (DRIVE_FAULT, value the error code; a sensor board's EMCY is a
 SENSOR_FAULT), a heartbeat older than the consumer time or a slave that reports another NMT
@@ -74,19 +74,19 @@ from typing import TypeVar
 import can
 
 from exo_has_driver import can_dictionary as cd
-from exo_has_driver import safety
 from exo_has_driver.errors import (
     CanBusError,
     CanOpenError,
     CanOpenTimeoutError,
     HardwareConfigError,
 )
+from exo_has_driver.events import Condition, Event, SafetyKind, Severity, StopLatch
 from exo_has_driver.hardware import cia402
 from exo_has_driver.hardware.bus import bus_state_fault, error_frame_fault
 from exo_has_driver.hardware.sdo import SdoClient, object_name
 from exo_has_driver.hardware.units import DriveUnits, SensorFault, decode_sensors
-from exo_has_driver.safety import Event
 from exo_has_sim.parameters import HasParameters
+from exo_has_sim.valve import ValveMode
 
 #: Default SYNC periods without a TPDO from a slave after which the bus counts as silent.
 DEFAULT_MISSING_SYNCS = 10
@@ -326,7 +326,7 @@ class JointSample:
     motor_current : float
         Motor current [A].
     valve_mode : int
-        Inferred valve mode (``safety.VALVE_*``); see the module docstring.
+        Inferred valve mode (:class:`~exo_has_sim.valve.ValveMode`); see the module docstring.
     drive_state : str
         CiA 402 state of the drive.
     sensor_fault : bool
@@ -353,15 +353,15 @@ class JointSample:
 
 def infer_valve_mode(joint: JointConfig, drive_state: str, motor_speed: float,
                      pressure_a: float, pressure_b: float) -> int:
-    """Infer the compact valve's mode (``safety.VALVE_*``); see the module docstring."""
+    """Infer the compact valve's mode (a ``ValveMode``); see the module docstring."""
     if pressure_a >= joint.relief_pressure or pressure_b >= joint.relief_pressure:
-        return safety.VALVE_RELIEF
+        return ValveMode.RELIEF
     if drive_state != cia402.OPERATION_ENABLED:
-        return safety.VALVE_FREE
+        return ValveMode.FREE
     if abs(motor_speed) < joint.stopped_speed and pressure_a < joint.drop_pressure \
             and pressure_b < joint.drop_pressure:
-        return safety.VALVE_FREE
-    return safety.VALVE_ASSIST
+        return ValveMode.FREE
+    return ValveMode.ASSIST
 
 
 class _Slave:
@@ -484,9 +484,7 @@ class Master:
         self._sync = can.Message(arbitration_id=cd.SYNC_COB_ID, data=b'',
                                  is_extended_id=False)
         self._heartbeat_due: float | None = None
-        self._latched = False
-        self._cause: Event | None = None
-        self._active: set[_Key] = set()
+        self._latch_state = StopLatch()
         self._running = False
         self._operational = False
         self._thread: threading.Thread | None = None
@@ -514,12 +512,12 @@ class Master:
     @property
     def latched(self) -> bool:
         """Whether a stop is latched."""
-        return self._latched
+        return self._latch_state.latched
 
     @property
     def cause(self) -> Event | None:
         """The event that latched the stop, None when not latched."""
-        return self._cause
+        return self._latch_state.cause
 
     @property
     def io_thread_id(self) -> int | None:
@@ -610,13 +608,13 @@ class Master:
         self._thread.start()
         deadline = self._clock() + self.config.enable_timeout
         while not self.all_enabled():
-            if self._latched or not self.running or self._clock() > deadline:
+            if self._latch_state.latched or not self.running or self._clock() > deadline:
                 self.close()
                 if self.failure is not None:
                     msg = f'the CAN master failed while enabling the drives: {self.failure}'
                     raise CanOpenError(msg) from self.failure
-                if self._cause is not None:
-                    msg = f'a fault while enabling the drives: {self._cause.text}'
+                if self._latch_state.cause is not None:
+                    msg = f'a fault while enabling the drives: {self._latch_state.cause.text}'
                     raise CanOpenError(msg)
                 states = ', '.join(f'{joint.config.name} drive (node {joint.drive.node}) in '
                                    f'{joint.state}' for joint in self._joints
@@ -848,7 +846,7 @@ class Master:
                     next_sync = now + period  # held up: no burst of SYNCs
         except Exception as exc:  # the loop must not die silently: stop and tell
             self.failure = exc
-            self._latch(('failure',), '', safety.KIND_BUS_OFF, _NAN, _NAN,
+            self._latch(('failure',), '', SafetyKind.BUS_OFF, _NAN, _NAN,
                         f'the CAN master loop failed: {exc!r}')
             self._send_best_effort_stop()
 
@@ -881,7 +879,7 @@ class Master:
         while self._requests:
             kind, text = self._requests.popleft()
             if kind == 'stop':
-                self._latch(('e-stop',), '', safety.KIND_E_STOP, _NAN, _NAN,
+                self._latch(('e-stop',), '', SafetyKind.E_STOP, _NAN, _NAN,
                             f'emergency stop: {text}')
             else:
                 self._reset(now)
@@ -891,7 +889,7 @@ class Master:
         units = self._units
         command_timeout = self.config.command_timeout
         for index, joint in enumerate(self._joints):
-            if self._latched or self._shutting_down:
+            if self._latch_state.latched or self._shutting_down:
                 want = cia402.Want.STOPPED
                 speed = 0.0
             else:
@@ -928,12 +926,13 @@ class Master:
         if self._sync_count % BUS_STATE_EVERY == 0:
             self._state_fault = bus_state_fault(self.bus)
         conditions = self._conditions(now)
-        for key, joint, kind, value, limit, text in conditions:
-            self._latch(key, joint, kind, value, limit, text)
-        holding = {condition[0] for condition in conditions}
-        self._active -= {key for key in self._active
-                         if key[0] in _CONDITION_KEYS and key not in holding}
-        if self._latched:
+        for condition in conditions:
+            self._events += self._latch_state.report_once(condition)
+        holding = {condition.key for condition in conditions}
+        self._latch_state.forget({key for key in self._latch_state.reported
+                                  if isinstance(key, tuple) and key[0] in _CONDITION_KEYS
+                                  and key not in holding})
+        if self._latch_state.latched:
             self._restart_slaves(now)
 
     def _restart_slaves(self, now: float) -> None:
@@ -949,44 +948,44 @@ class Master:
                 slave.nmt_start_time = now
                 self._send_nmt(cd.NMT_START, slave.node)
 
-    def _conditions(self, now: float) -> list[tuple[_Key, str, int, float, float, str]]:
+    def _conditions(self, now: float) -> list[Condition]:
         """List the fault conditions that hold now: what supervision latches, what forbids a reset.
 
-        Each as (key, joint, kind, value, limit, text). A drive in fault counts once its
-        fault reset time is over. Events that are not states (an EMCY, a drive leaving
-        operation enabled, an e-stop) are latched where they come.
+        A drive in fault counts once its fault reset time is over. Events that are not states
+        (an EMCY, a drive leaving operation enabled, an e-stop) are latched where they come.
         """
         config = self.config
-        conditions: list[tuple[_Key, str, int, float, float, str]] = []
+        conditions: list[Condition] = []
         for slave in self._slaves:
             lost = self._heartbeat_fault(slave, now)
             if lost is not None:
                 age = now - slave.heartbeat_time if slave.heartbeat_time is not None else _NAN
-                conditions.append((('heartbeat', slave.node), slave.joint,
-                                   safety.KIND_HEARTBEAT_LOST, age, config.heartbeat_timeout,
-                                   f'{slave.label}: {lost}'))
+                conditions.append(Condition(
+                    ('heartbeat', slave.node), slave.joint, SafetyKind.HEARTBEAT_LOST, age,
+                    config.heartbeat_timeout, f'{slave.label}: {lost}'))
             if slave.missing >= config.missing_syncs:
-                conditions.append((('missing', slave.node), slave.joint, safety.KIND_BUS_OFF,
-                                   _NAN, _NAN,
-                                   f'{slave.label}: no TPDO for {slave.missing} SYNC periods'))
+                conditions.append(Condition(
+                    ('missing', slave.node), slave.joint, SafetyKind.BUS_OFF, _NAN, _NAN,
+                    f'{slave.label}: no TPDO for {slave.missing} SYNC periods'))
         for joint in self._joints:
             name = joint.config.name
             if cia402.is_fault(joint.state) and now > joint.fault_reset_until:
                 code = joint.emcy_code
-                conditions.append((('drive', name), name, safety.KIND_DRIVE_FAULT,
-                                   float(code) if code is not None else _NAN, _NAN,
-                                   f'{joint.drive.label} in {joint.state} ({_fault_text(code)})'))
+                conditions.append(Condition(
+                    ('drive', name), name, SafetyKind.DRIVE_FAULT,
+                    float(code) if code is not None else _NAN, _NAN,
+                    f'{joint.drive.label} in {joint.state} ({_fault_text(code)})'))
             if joint.fault is not None:
-                conditions.append((('sensor', name), name, safety.KIND_SENSOR_FAULT,
-                                   joint.fault.value, joint.fault.limit,
-                                   f'{joint.sensor.label}: {joint.fault.text}'))
+                conditions.append(Condition(
+                    ('sensor', name), name, SafetyKind.SENSOR_FAULT, joint.fault.value,
+                    joint.fault.limit, f'{joint.sensor.label}: {joint.fault.text}'))
         bus_checks: tuple[tuple[str, str | None], ...] = (
             ('bus state', self._state_fault), ('send', self._send_fault()),
             ('error frame', self._error_frame_fault(now)),
             ('receive', self._receive_fault_now(now)))
         for key, text in bus_checks:
             if text is not None:
-                conditions.append(((key,), '', safety.KIND_BUS_OFF, _NAN, _NAN, text))
+                conditions.append(Condition((key,), '', SafetyKind.BUS_OFF, _NAN, _NAN, text))
         return conditions
 
     def _heartbeat_fault(self, slave: _Slave, now: float) -> str | None:
@@ -1020,9 +1019,8 @@ class Master:
 
     def _reset(self, now: float) -> None:
         """First phase of a reset: refuse it, or send the drives in fault a reset edge."""
-        if not self._latched:
-            self._events.append(Event('', safety.KIND_RESET, safety.SEVERITY_INFO, _NAN, _NAN,
-                                      False, 'reset: no stop was latched'))
+        if not self._latch_state.latched:
+            self._events.append(self._latch_state.release())  # says none was latched
             return
         if self._reset_until is not None:
             return  # the reset asked for before is under way
@@ -1050,31 +1048,23 @@ class Master:
             code = joint.emcy_code
             texts = '; '.join(f'{j.drive.label} still in {j.state} after its fault reset '
                               f'({_fault_text(j.emcy_code)})' for j in in_fault)
-            self._events.append(Event(joint.config.name, safety.KIND_DRIVE_FAULT,
-                                      safety.SEVERITY_WARN,
+            self._events.append(Event(joint.config.name, SafetyKind.DRIVE_FAULT,
+                                      Severity.WARN,
                                       float(code) if code is not None else _NAN, _NAN, True,
                                       f'reset refused: {texts}'))
             return
         self._reset_until = None
-        cause = self._cause
-        self._latched = False
-        self._cause = None
-        self._active.clear()
         for index in range(len(self._joints)):
             self._commands[index] = (0.0, True, now)
-        because = f' (latched by {cause.text})' if cause is not None else ''
-        self._events.append(Event('', safety.KIND_RESET, safety.SEVERITY_INFO, _NAN, _NAN,
-                                  False, f'reset: stop released{because}'))
+        self._events.append(self._latch_state.release())
 
-    def _refuse_reset(self, conditions: list[tuple[_Key, str, int, float, float, str]]) -> bool:
+    def _refuse_reset(self, conditions: list[Condition]) -> bool:
         """WARN and return True if a condition other than a drive in fault holds."""
-        holding = [condition for condition in conditions if condition[0][0] != 'drive']
-        if not holding:
+        refusal = self._latch_state.refusal(
+            [condition for condition in conditions if condition.kind != SafetyKind.DRIVE_FAULT])
+        if refusal is None:
             return False
-        _, name, kind, value, limit, _ = holding[0]
-        texts = '; '.join(condition[5] for condition in holding)
-        self._events.append(Event(name, kind, safety.SEVERITY_WARN, value, limit, True,
-                                  f'reset refused: {texts}'))
+        self._events.append(refusal)
         return True
 
     def _arm_fault_reset(self, joint: _Joint, now: float) -> None:
@@ -1082,17 +1072,11 @@ class Master:
         joint.fault_reset = True
         joint.fault_reset_until = now + FAULT_RESET_TIME + 2 * self.config.period
 
-    def _latch(self, key: _Key, joint: str, kind: int,
+    def _latch(self, key: _Key, joint: str, kind: SafetyKind,
                value: float, limit: float, text: str) -> None:
         """Raise a FATAL event for a condition not yet reported, and latch the stop."""
-        if key in self._active:
-            return
-        self._active.add(key)
-        self._latched = True
-        event = Event(joint, kind, safety.SEVERITY_FATAL, float(value), float(limit), True, text)
-        if self._cause is None:
-            self._cause = event
-        self._events.append(event)
+        self._events += self._latch_state.report_once(
+            Condition(key, joint, kind, value, limit, text))
 
     # --- frames in -----------------------------------------------------------------------------
     def _register_handlers(self) -> None:
@@ -1129,7 +1113,7 @@ class Master:
             slave.booted = True
             if self._operational:
                 slave.rebooted = True
-                self._latch(('heartbeat', slave.node), slave.joint, safety.KIND_HEARTBEAT_LOST,
+                self._latch(('heartbeat', slave.node), slave.joint, SafetyKind.HEARTBEAT_LOST,
                             0.0, self.config.heartbeat_timeout,
                             f'{slave.label}: booted (boot-up message) while running: its '
                             f'configuration is lost, restart the driver')
@@ -1148,12 +1132,12 @@ class Master:
         if is_drive:
             joint.emcy_code = code
             self._latch(('drive', joint.config.name), joint.config.name,
-                        safety.KIND_DRIVE_FAULT, float(code), _NAN,
+                        SafetyKind.DRIVE_FAULT, float(code), _NAN,
                         f'{joint.drive.label}: EMCY 0x{code:04X} {name} (error register '
                         f'0x{data[2]:02X})')
         else:
             self._latch(('emcy', joint.sensor.node), joint.config.name,
-                        safety.KIND_SENSOR_FAULT, float(code), _NAN,
+                        SafetyKind.SENSOR_FAULT, float(code), _NAN,
                         f'{joint.sensor.label}: EMCY 0x{code:04X} {name} (error register '
                         f'0x{data[2]:02X})')
 
@@ -1168,7 +1152,7 @@ class Master:
         if cia402.is_fault(before) and not cia402.is_fault(state):
             joint.emcy_code = None  # the next fault's code is unknown until its EMCY
         if state == cia402.UNKNOWN:
-            self._latch(('drive', name), name, safety.KIND_DRIVE_FAULT, _NAN, _NAN,
+            self._latch(('drive', name), name, SafetyKind.DRIVE_FAULT, _NAN, _NAN,
                         f'{joint.drive.label}: statusword 0x{status:04X} matches no CiA 402 '
                         f'state')
         elif before == cia402.OPERATION_ENABLED and state != before \
@@ -1176,7 +1160,7 @@ class Master:
                 and joint.enabled_syncs > self.config.missing_syncs:
             # Sent enable operation for longer than a TPDO may lag: the drive left by itself
             # (a fault is reported with its code by the supervision).
-            self._latch(('drive', name), name, safety.KIND_DRIVE_FAULT, _NAN, _NAN,
+            self._latch(('drive', name), name, SafetyKind.DRIVE_FAULT, _NAN, _NAN,
                         f'{joint.drive.label} left operation enabled for {state} by itself')
         self._received(joint, _DRIVE_TPDO)
 
@@ -1210,10 +1194,10 @@ class Master:
         joint.fault = fault
         key = ('sensor', config.name)
         if fault is not None:
-            self._latch(key, config.name, safety.KIND_SENSOR_FAULT, fault.value, fault.limit,
+            self._latch(key, config.name, SafetyKind.SENSOR_FAULT, fault.value, fault.limit,
                         f'{joint.sensor.label}: {fault.text}')
         else:
-            self._active.discard(key)
+            self._latch_state.forget({key})
         units = self._units
         speed = units.velocity_from_drive(joint.velocity)
         self._samples.append(JointSample(
