@@ -52,16 +52,16 @@ from exo_has_driver import can_dictionary as cd
 from exo_has_driver.errors import HardwareConfigError, MasterStoppedError
 from exo_has_driver.events import Event, SafetyKind, Severity
 from exo_has_driver.hardware.bus import open_bus
-from exo_has_driver.hardware.master import (
+from exo_has_driver.hardware.config import (
     DEFAULT_ACCELERATION,
     DEFAULT_COMMAND_TIMEOUT,
     DEFAULT_MISSING_SYNCS,
     DEFAULT_QUICK_STOP_DECELERATION,
     JointConfig,
     JointSample,
-    Master,
     MasterConfig,
 )
+from exo_has_driver.hardware.master import Master
 from exo_has_driver.hardware.units import DriveUnits
 from exo_has_driver.node_parameters import checked_joints, joint_type_parameters
 from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent

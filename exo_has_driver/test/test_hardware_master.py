@@ -18,12 +18,8 @@ from exo_has_driver.errors import (
 )
 from exo_has_driver.events import SafetyKind, Severity
 from exo_has_driver.hardware import cia402
-from exo_has_driver.hardware.master import (
-    JointConfig,
-    Master,
-    MasterConfig,
-    infer_valve_mode,
-)
+from exo_has_driver.hardware.config import JointConfig, MasterConfig, infer_valve_mode
+from exo_has_driver.hardware.master import Master
 from exo_has_sim.parameters import load_parameters
 from exo_has_sim.valve import ValveMode
 

@@ -4,6 +4,9 @@
 - :mod:`.cia402`: which controlword moves a drive toward the wanted CiA 402 state;
 - :mod:`.sdo`: a small blocking SDO client for the configuration at start;
 - :mod:`.bus`: opening the python-can bus, reading its faults;
-- :mod:`.master`: the master (NMT, SDO configuration, SYNC cycle, PDOs, heartbeats, EMCY,
-  supervision and the stop latch).
+- :mod:`.config`: the master's settings, its samples and the valve mode inference;
+- :mod:`.frames`: the master's CANopen frames, built and read as pure functions;
+- :mod:`.records`: what the master tracks of each slave and joint;
+- :mod:`.startup`: start-up of the slaves over NMT and SDO (identity, PDO configuration);
+- :mod:`.master`: the master (its I/O thread, the SYNC cycle, supervision and the stop latch).
 """

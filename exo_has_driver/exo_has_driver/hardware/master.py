@@ -1,34 +1,28 @@
-"""The CANopen master of the HAS joints: start-up, the SYNC cycle, supervision and the stop latch.
+"""The CANopen master of the HAS joints: the I/O thread, the SYNC cycle, supervision, the latch.
 
 One :class:`Master` serves N joints (a CiA 402 drive and a sensor board each) on one python-can
-bus, as ``config/canopen/README.md`` specifies.
+bus, as ``config/canopen/README.md`` specifies; it is the one entry point of this package,
+configured with :class:`~.config.MasterConfig`.
 
-Start (:meth:`Master.start`, blocking, each wait bounded): the master's heartbeat starts; NMT
-reset communication of every slave and wait for each one's boot-up message; SDO configuration
-of each (the identity 1018h and device type 1000h checked, the SYNC COB-ID checked, consumed;
-the cycle period, heartbeat consumer and producer times written; on the drives first the
-abort connection option code 6007h (quick stop) and error behaviour 1029h (no NMT change),
-see :data:`ABORT_CONNECTION_OPTION` and :data:`ERROR_BEHAVIOUR`, then modes of operation 3,
-quick stop option code 2 and the profile ramps; each PDO's COB-ID (its 11-bit identifier and
-valid bit 31; bit 30 is the device's), transmission type and mapping read and, where they
-differ from :mod:`exo_has_driver.can_dictionary`, rewritten per CiA 301: PDO invalid, mapping
-count 0, entries, count, PDO valid; last the drive's statusword and 603Fh: a drive in fault
-with another code than 8130h, the master's heartbeat lost, ends the start naming the code);
-NMT start and wait for every heartbeat to report operational; then the I/O thread runs and
-the drives are taken through the enable sequence (those in fault with 8130h through one fault
-reset first) to operation enabled at zero speed. A device that does not answer raises
-:class:`CanOpenTimeoutError` naming the node and the object or step; a bus that fails to
-receive, :class:`CanBusError`.
+Start (:meth:`Master.start`, blocking, each wait bounded): the master's heartbeat starts, then
+:func:`.startup.start_slaves` resets, configures over SDO and starts every slave (identity,
+cycle and heartbeat times, what a drive does on a lost connection, its mode and ramps, each
+PDO checked and rewritten where it differs from :mod:`exo_has_driver.can_dictionary`; a drive
+in a fault other than the master's heartbeat lost ends the start naming its code); then the
+I/O thread runs and the drives are taken through the enable sequence (those in fault with
+8130h through one fault reset first) to operation enabled at zero speed. A device that does
+not answer raises :class:`CanOpenTimeoutError` naming the node and the object or step; a bus
+that fails to receive, :class:`CanBusError`.
 
 Cycle (the I/O thread, which alone owns the bus and the protocol state): it receives frames until
 the next SYNC is due, then checks the slaves, writes every drive's RPDO1 (controlword from
 :mod:`.cia402`, target velocity from the newest command, clamped to the joint's
 ``motor_speed_max``) and sends the SYNC; the master's heartbeat goes out every producer
-period. TPDOs are decoded with the structs of ``can_dictionary`` as they come; once a joint's
-three TPDOs are in, a :class:`JointSample` is queued, stamped with the receive time of the
-sensor board's TPDO1 (``Message.timestamp``: the kernel's on SocketCAN). A failed receive is a
-bus fault; after :data:`RECEIVE_FAILURES_MAX` in a row the thread ends (:attr:`Master.running`
-false, :attr:`Master.failure` the error). The caller's thread only swaps a command tuple
+period. TPDOs are decoded (:mod:`.frames`) as they come; once a joint's three TPDOs are in, a
+:class:`~.config.JointSample` is queued, stamped with the receive time of the sensor board's
+TPDO1 (``Message.timestamp``: the kernel's on SocketCAN). A failed receive is a bus fault;
+after :data:`RECEIVE_FAILURES_MAX` in a row the thread ends (:attr:`Master.running` false,
+:attr:`Master.failure` the error). The caller's thread only swaps a command tuple
 (:meth:`set_command`), appends a request, or pops the queues (:meth:`take_samples`,
 :meth:`take_events`): it never waits on the bus.
 
@@ -52,12 +46,23 @@ enable sequence again, at zero speed until the next command; a drive still in fa
 refuses the reset (WARN). A slave that booted while running holds until the driver restarts:
 its configuration is lost.
 
-Valve mode: the hardware does not measure it, so it is inferred as the plant model defines it
-(exo_has_sim: relief while the safety valve passes flow, free when the motor is stopped and the
-system pressure has dropped): RELIEF when a chamber pressure is at or over the joint's relief
-setting; FREE when the drive is not in operation enabled, or when the motor is stopped (speed
-under the valve's release speed) and both pressures are under the valve's drop pressure;
-ASSIST otherwise.
+The ``canopen`` package (a dependency already: :mod:`.sdo` takes its SDO abort texts, the
+simulated devices its object dictionaries) supplies none of the master's parts:
+
+- ``canopen.Network`` reads the bus in a ``can.Notifier`` thread of its own and sends SYNC from
+  python-can's ``send_periodic`` thread, where our I/O thread alone owns the bus and times the
+  SYNC cycle itself.
+- ``canopen.sdo.SdoClient`` waits on a queue that the network's reader thread fills, so on the
+  thread that owns the bus it would wait without receiving (nor producing our heartbeat); it
+  does not skip a late answer to an earlier request (a read fails on it, a write may take it
+  for its own) and its errors name neither node nor object, both of which :mod:`.sdo` does.
+- ``canopen.pdo`` maps read and write their configuration through that SDO client and decode
+  received PDOs in callbacks subscribed on a ``Network``, where
+  :func:`.startup.configure_pdo` checks the mappings against ``can_dictionary`` over
+  :mod:`.sdo` and :mod:`.frames` unpacks each PDO with one struct.
+- ``canopen.profiles.p402.BaseNode402`` is such a networked node whose state setter blocks its
+  caller for up to 0.8 s, polling the statusword, where :mod:`.cia402` gives the I/O thread one
+  controlword per SYNC period.
 """
 
 from __future__ import annotations
@@ -66,8 +71,7 @@ import collections
 import math
 import threading
 import time
-from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from collections.abc import Callable
 from functools import partial
 from typing import TypeVar
 
@@ -81,22 +85,19 @@ from exo_has_driver.errors import (
     HardwareConfigError,
 )
 from exo_has_driver.events import Condition, Event, SafetyKind, Severity, StopLatch
-from exo_has_driver.hardware import cia402
+from exo_has_driver.hardware import cia402, frames, startup
 from exo_has_driver.hardware.bus import bus_state_fault, error_frame_fault
-from exo_has_driver.hardware.sdo import SdoClient, object_name
-from exo_has_driver.hardware.units import DriveUnits, SensorFault, decode_sensors
-from exo_has_sim.parameters import HasParameters
-from exo_has_sim.valve import ValveMode
+from exo_has_driver.hardware.config import JointSample, MasterConfig, infer_valve_mode
+from exo_has_driver.hardware.records import (
+    ALL_TPDOS,
+    DRIVE_TPDO,
+    SENSOR_TPDO1,
+    SENSOR_TPDO2,
+    JointRecord,
+    SlaveRecord,
+)
+from exo_has_driver.hardware.units import decode_sensors
 
-#: Default SYNC periods without a TPDO from a slave after which the bus counts as silent.
-DEFAULT_MISSING_SYNCS = 10
-#: Default profile acceleration and deceleration of the pump [rad/s^2]: full speed (418.9 rad/s)
-#: in 28 ms, against the motor's 5 ms time constant (the EDS default is about the same).
-DEFAULT_ACCELERATION = 15000.0
-#: Default quick stop deceleration [rad/s^2]: full speed to standstill in 14 ms.
-DEFAULT_QUICK_STOP_DECELERATION = 30000.0
-#: Default age of the newest command after which the drive is sent zero speed [s].
-DEFAULT_COMMAND_TIMEOUT = 0.25
 #: How long a drive has to leave fault after its fault reset edge [s].
 FAULT_RESET_TIME = 0.1
 #: How long an error frame's bus fault counts as holding [s].
@@ -111,340 +112,13 @@ RECEIVE_FAILURES_MAX = 100
 #: Frames handled at most between two SYNCs' catch-up drains (a flooded bus must not hold up
 #: the SYNC).
 DRAIN_MAX = 256
-#: Share of the bit rate the cyclic frames and heartbeats may take: the rest is for SDO, EMCY,
-#: retransmissions, and the TPDOs must be in before the next SYNC.
-MAX_BUS_LOAD = 0.8
-#: Error codes of a drive fault that start-up clears by itself: the master's heartbeat lost
-#: (the previous master's, or this one's before it started).
-AUTO_RESET_CODES = frozenset({cd.ERROR_HEARTBEAT_LOST})
-#: Abort connection option code 6007h written to every drive: on a lost master heartbeat or
-#: leaving NMT operational the drive quick stops (brakes on 6085h within 14 ms at full speed,
-#: then switch on disabled with 605Ah = 2) rather than coasting (2) or a fault reaction (1,
-#: which on a COPLEY disables the motor at once): the HAS then falls to free mode standing.
-ABORT_CONNECTION_OPTION = cd.ABORT_CONNECTION_QUICK_STOP
-#: Error behaviour 1029h sub 1 written to every drive: a communication error leaves the NMT
-#: state alone (not pre-operational, CiA 301's default), so that once the bus is back the
-#: master's RPDOs (quick stop, disable voltage) apply at once; 6007h stops the motor meanwhile.
-ERROR_BEHAVIOUR = cd.ERROR_BEHAVIOUR_NO_CHANGE
 
-_NMT_STATE_NAMES = {cd.NMT_BOOT_UP: 'boot-up', cd.NMT_STOPPED: 'stopped',
-                    cd.NMT_OPERATIONAL: 'operational',
-                    cd.NMT_PRE_OPERATIONAL: 'pre-operational'}
-_DRIVE_PDOS = ((cd.RPDO1_COMMUNICATION, cd.RPDO1_MAPPING, cd.RPDO1_BASE, cd.DRIVE_RPDO1_MAP),
-               (cd.TPDO1_COMMUNICATION, cd.TPDO1_MAPPING, cd.TPDO1_BASE, cd.DRIVE_TPDO1_MAP))
-_SENSOR_PDOS = ((cd.TPDO1_COMMUNICATION, cd.TPDO1_MAPPING, cd.TPDO1_BASE, cd.SENSOR_TPDO1_MAP),
-                (cd.TPDO2_COMMUNICATION, cd.TPDO2_MAPPING, cd.TPDO2_BASE, cd.SENSOR_TPDO2_MAP))
-_DRIVE_TPDO = 1
-_SENSOR_TPDO1 = 2
-_SENSOR_TPDO2 = 4
-_ALL_TPDOS = _DRIVE_TPDO | _SENSOR_TPDO1 | _SENSOR_TPDO2
 _NAN = math.nan
-_DEFAULT_UNITS = DriveUnits()
 # Keys of the conditions that are reported again after they stopped holding for a while.
 _CONDITION_KEYS = frozenset({'missing', 'heartbeat', 'sensor', 'bus state', 'send',
                              'error frame', 'receive'})
 _T = TypeVar('_T')
 _Key = tuple[object, ...]
-
-
-@dataclass(frozen=True)
-class JointConfig:
-    """One joint on the bus: node IDs and what the checks and the valve inference need.
-
-    Attributes
-    ----------
-    name : str
-        Joint name (``left_hip``...).
-    drive_id, sensor_id : int
-        CANopen node IDs of the drive and the sensor board.
-    stroke : float
-        Cylinder stroke [m].
-    relief_pressure : float
-        Safety valve setting [Pa].
-    drop_pressure : float
-        Pressure under which the compact valve falls to free mode [Pa].
-    stopped_speed : float
-        Motor speed under which the motor counts as stopped [rad/s].
-    motor_speed_max : float
-        Largest pump speed commanded [rad/s]; faster commands are clamped to it.
-
-    """
-
-    name: str
-    drive_id: int
-    sensor_id: int
-    stroke: float
-    relief_pressure: float
-    drop_pressure: float
-    stopped_speed: float
-    motor_speed_max: float = math.inf
-
-    @classmethod
-    def from_parameters(cls, name: str, params: HasParameters, drive_id: int | None = None,
-                        sensor_id: int | None = None) -> JointConfig:
-        """Build a joint from its HAS parameter set; node IDs default to can_dictionary's.
-
-        Raises
-        ------
-        HardwareConfigError
-            For a joint that has no default node ID.
-
-        """
-        try:
-            drive = cd.DRIVE_NODE_IDS[name] if drive_id is None else drive_id
-            sensor = cd.SENSOR_NODE_IDS[name] if sensor_id is None else sensor_id
-        except KeyError:
-            msg = (f'joint {name!r} has no default node ID: known are '
-                   f'{", ".join(cd.DRIVE_NODE_IDS)}')
-            raise HardwareConfigError(msg) from None
-        return cls(name, drive, sensor, params.stroke, params.relief_pressure,
-                   params.valve_drop_pressure, params.valve_release_speed,
-                   params.motor_speed_max)
-
-
-@dataclass(frozen=True)
-class MasterConfig:
-    """Settings of the master; times in seconds, accelerations in rad/s^2 of the pump.
-
-    ``bitrate`` [bit/s] is the bus's: the SYNC cycle's frames (see :func:`bits_per_sync`) and
-    the heartbeats must fit in :data:`MAX_BUS_LOAD` of it.
-
-    Raises
-    ------
-    HardwareConfigError
-        Naming the first setting out of range, a node ID used twice, or a bus load the bit
-        rate cannot carry.
-
-    """
-
-    joints: tuple[JointConfig, ...]
-    units: DriveUnits = _DEFAULT_UNITS
-    period: float = cd.SYNC_PERIOD
-    heartbeat_period: float = cd.HEARTBEAT_PERIOD
-    heartbeat_timeout: float = cd.HEARTBEAT_TIMEOUT
-    missing_syncs: int = DEFAULT_MISSING_SYNCS
-    acceleration: float = DEFAULT_ACCELERATION
-    quick_stop_deceleration: float = DEFAULT_QUICK_STOP_DECELERATION
-    command_timeout: float = DEFAULT_COMMAND_TIMEOUT
-    sdo_timeout: float = 0.5
-    boot_timeout: float = 2.0
-    enable_timeout: float = 2.0
-    master_id: int = cd.MASTER_NODE_ID
-    bitrate: int = 1_000_000
-
-    def __post_init__(self) -> None:
-        if not self.joints:
-            msg = 'the master needs at least one joint'
-            raise HardwareConfigError(msg)
-        for name in ('period', 'heartbeat_period', 'heartbeat_timeout', 'acceleration',
-                     'quick_stop_deceleration', 'command_timeout', 'sdo_timeout',
-                     'boot_timeout', 'enable_timeout'):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0.0):
-                msg = f'{name} = {value!r} must be positive and finite'
-                raise HardwareConfigError(msg)
-        # The object dictionary holds the heartbeat times in whole milliseconds (16 bits).
-        for name in ('heartbeat_period', 'heartbeat_timeout'):
-            ms = round(getattr(self, name) * 1e3)
-            if not 1 <= ms <= 0xFFFF:
-                msg = f'{name} = {getattr(self, name)!r} s must be 1 ms to 65.535 s'
-                raise HardwareConfigError(msg)
-        if self.heartbeat_timeout <= self.heartbeat_period:
-            msg = (f'heartbeat_timeout {self.heartbeat_timeout} s must exceed heartbeat_period '
-                   f'{self.heartbeat_period} s')
-            raise HardwareConfigError(msg)
-        if isinstance(self.missing_syncs, bool) or not isinstance(self.missing_syncs, int) \
-                or self.missing_syncs < 1:
-            msg = f'missing_syncs = {self.missing_syncs!r} must be an integer of at least 1'
-            raise HardwareConfigError(msg)
-        ids = [self.master_id]
-        for joint in self.joints:
-            ids += [joint.drive_id, joint.sensor_id]
-        for node in ids:
-            if isinstance(node, bool) or not isinstance(node, int) or not 1 <= node <= 127:
-                msg = f'node ID {node!r} must be an integer of 1 to 127'
-                raise HardwareConfigError(msg)
-        if len(set(ids)) != len(ids):
-            msg = f'node IDs must differ (master and every drive and sensor board): {ids}'
-            raise HardwareConfigError(msg)
-        names = [joint.name for joint in self.joints]
-        if len(set(names)) != len(names):
-            msg = f'joint names must differ: {names}'
-            raise HardwareConfigError(msg)
-        self.units.acceleration_to_drive(self.acceleration)
-        self.units.acceleration_to_drive(self.quick_stop_deceleration)
-        if isinstance(self.bitrate, bool) or not isinstance(self.bitrate, int) \
-                or self.bitrate <= 0:
-            msg = f'bitrate = {self.bitrate!r} must be a positive integer [bit/s]'
-            raise HardwareConfigError(msg)
-        per_sync = bits_per_sync(len(self.joints))
-        load = per_sync / self.period \
-            + (2 * len(self.joints) + 1) * frame_bits(1) / self.heartbeat_period
-        if load > MAX_BUS_LOAD * self.bitrate:
-            msg = (f'the bus cannot carry a SYNC every {self.period * 1e3:g} ms: '
-                   f'{len(self.joints)} joints take about {per_sync} bit per SYNC, '
-                   f'{load * 1e-3:.0f} kbit/s with the heartbeats, over '
-                   f'{MAX_BUS_LOAD:.0%} of {self.bitrate * 1e-3:g} kbit/s; lower the rate')
-            raise HardwareConfigError(msg)
-
-
-def frame_bits(data_bytes: int) -> int:
-    """Bits a base-format CAN frame takes on the bus at worst, stuff bits and gap included.
-
-    44 bits of frame and 3 of interframe space, 8 per data byte, and one stuff bit per four
-    of the 34 + 8 n bits that are stuffed (the worst case).
-    """
-    stuffed = 34 + 8 * data_bytes
-    return 47 + 8 * data_bytes + (stuffed - 1) // 4
-
-
-def bits_per_sync(joints: int) -> int:
-    """Bits of one SYNC cycle at worst: per joint an RPDO and three TPDOs, and the SYNC."""
-    per_joint = frame_bits(cd.DRIVE_RPDO1.size) + frame_bits(cd.DRIVE_TPDO1.size) \
-        + frame_bits(cd.SENSOR_TPDO1.size) + frame_bits(cd.SENSOR_TPDO2.size)
-    return joints * per_joint + frame_bits(0)
-
-
-@dataclass(frozen=True, slots=True)
-class JointSample:
-    """One joint's state at a SYNC, in the units of exo_has_msgs/msg/HasState.
-
-    Attributes
-    ----------
-    joint : str
-        Joint name.
-    stamp : float
-        Receive time of the sensor board's TPDO1 [s since the epoch] (python-can's timestamp).
-    position, velocity : float
-        Cylinder extension [m] and its velocity [m/s]; NaN without reading.
-    pressure_a, pressure_b : float
-        Chamber gauge pressures [Pa]; NaN without reading.
-    motor_speed : float
-        Measured pump speed [rad/s].
-    motor_speed_command : float
-        Target speed sent with this SYNC [rad/s].
-    motor_current : float
-        Motor current [A].
-    valve_mode : int
-        Inferred valve mode (:class:`~exo_has_sim.valve.ValveMode`); see the module docstring.
-    drive_state : str
-        CiA 402 state of the drive.
-    sensor_fault : bool
-        Whether the sensor board sample has a fault.
-    counter : int
-        The sensor board's sample counter.
-
-    """
-
-    joint: str
-    stamp: float
-    position: float
-    velocity: float
-    pressure_a: float
-    pressure_b: float
-    motor_speed: float
-    motor_speed_command: float
-    motor_current: float
-    valve_mode: int
-    drive_state: str
-    sensor_fault: bool
-    counter: int
-
-
-def infer_valve_mode(joint: JointConfig, drive_state: str, motor_speed: float,
-                     pressure_a: float, pressure_b: float) -> int:
-    """Infer the compact valve's mode (a ``ValveMode``); see the module docstring."""
-    if pressure_a >= joint.relief_pressure or pressure_b >= joint.relief_pressure:
-        return ValveMode.RELIEF
-    if drive_state != cia402.OPERATION_ENABLED:
-        return ValveMode.FREE
-    if abs(motor_speed) < joint.stopped_speed and pressure_a < joint.drop_pressure \
-            and pressure_b < joint.drop_pressure:
-        return ValveMode.FREE
-    return ValveMode.ASSIST
-
-
-class _Slave:
-    """What the master tracks of one slave."""
-
-    __slots__ = (
-        'booted',
-        'heartbeat_state',
-        'heartbeat_time',
-        'joint',
-        'label',
-        'missing',
-        'nmt_start_time',
-        'node',
-        'rebooted',
-        'seen',
-    )
-
-    def __init__(self, node: int, joint: str, role: str) -> None:
-        self.node = node
-        self.joint = joint
-        self.label = f'{joint} {role} (node {node})'
-        self.heartbeat_time: float | None = None
-        self.heartbeat_state: int | None = None
-        self.seen = True
-        self.missing = 0
-        self.booted = False  # a boot-up came since the start's reset communication
-        self.rebooted = False  # a boot-up came while running: its configuration is lost
-        self.nmt_start_time = -math.inf  # when the latch last sent it NMT start
-
-
-class _Joint:
-    """What the master tracks of one joint; written by the I/O thread only."""
-
-    __slots__ = (
-        'config',
-        'counter',
-        'current',
-        'drive',
-        'emcy_code',
-        'enabled_syncs',
-        'fault',
-        'fault_reset',
-        'fault_reset_until',
-        'last_cw',
-        'position',
-        'pressure_a',
-        'pressure_b',
-        'received',
-        'rpdo',
-        'sensor',
-        'stamp',
-        'state',
-        'status',
-        'target',
-        'velocity',
-        'velocity_sensor',
-    )
-
-    def __init__(self, config: JointConfig) -> None:
-        self.config = config
-        self.drive = _Slave(config.drive_id, config.name, 'drive')
-        self.sensor = _Slave(config.sensor_id, config.name, 'sensor board')
-        self.rpdo = can.Message(arbitration_id=cd.RPDO1_BASE + config.drive_id,
-                                data=bytearray(cd.DRIVE_RPDO1.size), is_extended_id=False)
-        self.last_cw = cd.CW_DISABLE_VOLTAGE
-        self.target = 0
-        self.state = cia402.UNKNOWN
-        self.fault_reset = False
-        self.fault_reset_until = -1.0
-        self.emcy_code: int | None = None
-        self.enabled_syncs = 0  # SYNCs in a row sent with enable operation
-        self.received = 0
-        self.stamp = 0.0
-        self.velocity = 0
-        self.current = 0
-        self.position = 0
-        self.pressure_a = 0
-        self.pressure_b = 0
-        self.velocity_sensor = 0
-        self.status = 0
-        self.counter = 0
-        self.fault: SensorFault | None = None
 
 
 class Master:
@@ -467,7 +141,7 @@ class Master:
         self.config = config
         self._clock = clock
         self._units = config.units
-        self._joints = [_Joint(joint) for joint in config.joints]
+        self._joints = [JointRecord(joint) for joint in config.joints]
         self._indices = {joint.config.name: index for index, joint in enumerate(self._joints)}
         self._slaves = [slave for joint in self._joints for slave in (joint.drive, joint.sensor)]
         now = clock()
@@ -479,10 +153,8 @@ class Master:
         self._sdo_answers: dict[int, bytes] = {}
         self._handlers: dict[int, Callable[[can.Message], None]] = {}
         self._register_handlers()
-        self._heartbeat = can.Message(arbitration_id=cd.HEARTBEAT_BASE + config.master_id,
-                                      data=bytes((cd.NMT_OPERATIONAL,)), is_extended_id=False)
-        self._sync = can.Message(arbitration_id=cd.SYNC_COB_ID, data=b'',
-                                 is_extended_id=False)
+        self._heartbeat = frames.heartbeat(config.master_id)
+        self._sync = frames.sync()
         self._heartbeat_due: float | None = None
         self._latch_state = StopLatch()
         self._running = False
@@ -645,40 +317,12 @@ class Master:
 
     # --- start-up (caller's thread, before the I/O thread runs) ------------------------------
     def _start_slaves(self) -> None:
-        config = self.config
         self._heartbeat_due = self._clock()
         for _ in range(DRAIN_MAX):  # forget frames from before the start (old boot-ups)
             if self.bus.recv(0.0) is None:
                 break
-        for slave in self._slaves:
-            slave.heartbeat_state = None
-            slave.booted = False
-            self._send_nmt(cd.NMT_RESET_COMMUNICATION, slave.node)
-        # Only the boot-up counts: a heartbeat from before the reset does not say it was done.
-        self._pump(config.boot_timeout, lambda: all(s.booted for s in self._slaves))
-        silent = [s.label for s in self._slaves if not s.booted]
-        if silent:
-            msg = (f'no boot-up within {config.boot_timeout:g} s of the NMT reset '
-                   f'communication from {", ".join(silent)}: powered, on the bus, at that ID?')
-            raise CanOpenTimeoutError(msg)
-        sdo = SdoClient(self._exchange, timeout=config.sdo_timeout)
-        in_fault = []
-        for joint in self._joints:
-            if self._configure_drive(sdo, joint):
-                in_fault.append(joint)
-            self._configure_sensor(sdo, joint.sensor.node)
-        for slave in self._slaves:
-            slave.heartbeat_state = None
-            self._send_nmt(cd.NMT_START, slave.node)
-        # Wait for a heartbeat sent after the start command, each a producer period apart.
-        self._pump(max(config.boot_timeout, 3 * config.heartbeat_period), lambda: all(
-            s.heartbeat_state == cd.NMT_OPERATIONAL for s in self._slaves))
-        late = [f'{s.label} ({_nmt_name(s.heartbeat_state)})' for s in self._slaves
-                if s.heartbeat_state != cd.NMT_OPERATIONAL]
-        if late:
-            msg = (f'not operational within {config.boot_timeout:g} s of the NMT start: '
-                   f'{", ".join(late)}')
-            raise CanOpenTimeoutError(msg)
+        link = startup.Link(self._send_nmt, self._pump, self._exchange)
+        in_fault = startup.start_slaves(link, self.config, self._joints)
         now = self._clock()
         for slave in self._slaves:
             slave.heartbeat_time = now
@@ -688,114 +332,11 @@ class Master:
             self._arm_fault_reset(joint, now)  # in fault from a lost master heartbeat only
         self._operational = True
 
-    def _configure_common(self, sdo: SdoClient, node: int, product: int,
-                          device_type: int) -> None:
-        config = self.config
-        found = (sdo.read_unsigned(node, cd.IDENTITY, 1), sdo.read_unsigned(node, cd.IDENTITY, 2))
-        if found != (cd.VENDOR_ID, product):
-            msg = (f'node {node}: identity {object_name(cd.IDENTITY, 1)}/2 is vendor '
-                   f'0x{found[0]:08X}, product 0x{found[1]:08X}; expected vendor '
-                   f'0x{cd.VENDOR_ID:08X}, product 0x{product:08X}: wrong device at this ID?')
-            raise CanOpenError(msg)
-        found_type = sdo.read_unsigned(node, cd.DEVICE_TYPE, 0)
-        if found_type != device_type:
-            msg = (f'node {node}: device type {object_name(cd.DEVICE_TYPE, 0)} is '
-                   f'0x{found_type:08X}, expected 0x{device_type:08X}')
-            raise CanOpenError(msg)
-        sync_cob = sdo.read_unsigned(node, cd.COB_ID_SYNC, 0)
-        if sync_cob & cd.COB_ID_MASK != cd.SYNC_COB_ID or sync_cob & cd.SYNC_PRODUCER:
-            msg = (f'node {node}: COB-ID SYNC {object_name(cd.COB_ID_SYNC, 0)} is '
-                   f'0x{sync_cob:08X}, expected 0x{cd.SYNC_COB_ID:X} consumed (bit 30 clear: '
-                   f'only the master produces SYNC)')
-            raise CanOpenError(msg)
-        sdo.write_unsigned(node, cd.CYCLE_PERIOD, 0, round(config.period * 1e6), 4)
-        consumer = (config.master_id << 16) | round(config.heartbeat_timeout * 1e3)
-        sdo.write_unsigned(node, cd.CONSUMER_HEARTBEAT_TIME, 1, consumer, 4)
-        sdo.write_unsigned(node, cd.PRODUCER_HEARTBEAT_TIME, 0,
-                           round(config.heartbeat_period * 1e3), 2)
-
-    def _configure_drive(self, sdo: SdoClient, joint: _Joint) -> bool:
-        """Configure a drive; return whether it is in a fault start-up may reset (8130h).
-
-        Raises
-        ------
-        CanOpenError
-            For a drive in any other fault, naming its error code 603Fh.
-
-        """
-        node = joint.drive.node
-        self._configure_common(sdo, node, cd.DRIVE_PRODUCT_CODE, cd.DRIVE_DEVICE_TYPE)
-        units = self._units
-        # First what a lost connection does, so that a lost master stops the motor from now on.
-        sdo.write_signed(node, cd.ABORT_CONNECTION_OPTION_CODE, 0, ABORT_CONNECTION_OPTION, 2)
-        sdo.write_unsigned(node, cd.ERROR_BEHAVIOUR, cd.ERROR_BEHAVIOUR_COMMUNICATION_SUB,
-                           ERROR_BEHAVIOUR, 1)
-        sdo.write_signed(node, cd.MODES_OF_OPERATION, 0, cd.PROFILE_VELOCITY_MODE, 1)
-        sdo.write_signed(node, cd.QUICK_STOP_OPTION_CODE, 0, cd.QUICK_STOP_RAMP_THEN_DISABLE, 2)
-        ramp = units.acceleration_to_drive(self.config.acceleration)
-        sdo.write_unsigned(node, cd.PROFILE_ACCELERATION, 0, ramp, 4)
-        sdo.write_unsigned(node, cd.PROFILE_DECELERATION, 0, ramp, 4)
-        sdo.write_unsigned(node, cd.QUICK_STOP_DECELERATION, 0,
-                           units.acceleration_to_drive(self.config.quick_stop_deceleration), 4)
-        mode = sdo.read_signed(node, cd.MODES_OF_OPERATION_DISPLAY, 0)
-        if mode != cd.PROFILE_VELOCITY_MODE:
-            msg = (f'node {node}: modes of operation display '
-                   f'{object_name(cd.MODES_OF_OPERATION_DISPLAY, 0)} is {mode} after writing '
-                   f'{cd.PROFILE_VELOCITY_MODE} (profile velocity)')
-            raise CanOpenError(msg)
-        for pdo in _DRIVE_PDOS:
-            self._configure_pdo(sdo, node, *pdo)
-        state = cia402.decode_state(sdo.read_unsigned(node, cd.STATUSWORD, 0))
-        if not cia402.is_fault(state):
-            return False
-        code = sdo.read_unsigned(node, cd.ERROR_CODE, 0)
-        joint.emcy_code = code
-        if code not in AUTO_RESET_CODES:
-            msg = (f'{joint.drive.label} is in {state} with error code 0x{code:04X} '
-                   f'{cd.ERROR_CODES.get(code, "(unknown)")} ({object_name(cd.ERROR_CODE, 0)})'
-                   f': the driver clears only a lost master heartbeat (0x8130) by itself; '
-                   f'remove the cause and clear the fault, then start again')
-            raise CanOpenError(msg)
-        return True
-
-    def _configure_sensor(self, sdo: SdoClient, node: int) -> None:
-        self._configure_common(sdo, node, cd.SENSOR_PRODUCT_CODE, cd.SENSOR_DEVICE_TYPE)
-        for pdo in _SENSOR_PDOS:
-            self._configure_pdo(sdo, node, *pdo)
-
-    def _configure_pdo(self, sdo: SdoClient, node: int, communication: int, mapping: int,
-                       base: int, layout: Iterable[tuple[int, int, int]]) -> None:
-        """Check a PDO against can_dictionary; rewrite it per CiA 301 where it differs.
-
-        The COB-ID matches on its 11-bit identifier and bit 31 (valid); bit 30 (no RTR) is
-        the device's and kept.
-        """
-        wanted = [(index << 16) | (sub << 8) | bits for index, sub, bits in layout]
-        cob_id = base + node
-        found_cob = sdo.read_unsigned(node, communication, 1)
-        found_type = sdo.read_unsigned(node, communication, 2)
-        count = sdo.read_unsigned(node, mapping, 0)
-        entries = [sdo.read_unsigned(node, mapping, sub) for sub in range(1, count + 1)]
-        no_rtr = found_cob & cd.PDO_COB_ID_NO_RTR
-        if found_cob & ~cd.PDO_COB_ID_NO_RTR == cob_id \
-                and found_type == cd.PDO_TRANSMISSION_SYNCHRONOUS and entries == wanted:
-            return
-        # CiA 301: make the PDO invalid, set the mapping count to 0, write the entries, the
-        # count, then the COB-ID with the PDO valid again.
-        sdo.write_unsigned(node, communication, 1, cob_id | no_rtr | cd.PDO_COB_ID_INVALID, 4)
-        sdo.write_unsigned(node, communication, 2, cd.PDO_TRANSMISSION_SYNCHRONOUS, 1)
-        sdo.write_unsigned(node, mapping, 0, 0, 1)
-        for sub, entry in enumerate(wanted, start=1):
-            sdo.write_unsigned(node, mapping, sub, entry, 4)
-        sdo.write_unsigned(node, mapping, 0, len(wanted), 1)
-        sdo.write_unsigned(node, communication, 1, cob_id | no_rtr, 4)
-
     def _exchange(self, node: int, request: bytes | None, timeout: float) -> bytes | None:
         """Send an SDO request and wait for the node's answer (the SdoClient's transport)."""
         if request is not None:
             self._sdo_answers.pop(node, None)
-            self._send(can.Message(arbitration_id=cd.SDO_RX_BASE + node, data=request,
-                                   is_extended_id=False))
+            self._send(frames.sdo_request(node, request))
         self._pump(timeout, lambda: node in self._sdo_answers)
         return self._sdo_answers.pop(node, None)
 
@@ -906,7 +447,7 @@ class Master:
             target = units.velocity_to_drive(speed) \
                 if want is cia402.Want.ENABLED and joint.state == cia402.OPERATION_ENABLED \
                 else 0
-            cd.DRIVE_RPDO1.pack_into(joint.rpdo.data, 0, cw, target)
+            frames.pack_rpdo1(joint.rpdo, cw, target)
             joint.last_cw = cw
             joint.target = target
             self._send(joint.rpdo)
@@ -974,7 +515,7 @@ class Master:
                 conditions.append(Condition(
                     ('drive', name), name, SafetyKind.DRIVE_FAULT,
                     float(code) if code is not None else _NAN, _NAN,
-                    f'{joint.drive.label} in {joint.state} ({_fault_text(code)})'))
+                    f'{joint.drive.label} in {joint.state} ({frames.fault_text(code)})'))
             if joint.fault is not None:
                 conditions.append(Condition(
                     ('sensor', name), name, SafetyKind.SENSOR_FAULT, joint.fault.value,
@@ -988,12 +529,12 @@ class Master:
                 conditions.append(Condition((key,), '', SafetyKind.BUS_OFF, _NAN, _NAN, text))
         return conditions
 
-    def _heartbeat_fault(self, slave: _Slave, now: float) -> str | None:
+    def _heartbeat_fault(self, slave: SlaveRecord, now: float) -> str | None:
         if slave.rebooted:
             return ('booted (boot-up message) while running: its configuration is lost, '
                     'restart the driver')
         if slave.heartbeat_state != cd.NMT_OPERATIONAL:
-            return f'reports NMT state {_nmt_name(slave.heartbeat_state)}, not operational'
+            return f'reports NMT state {frames.nmt_name(slave.heartbeat_state)}, not operational'
         if slave.heartbeat_time is None or now - slave.heartbeat_time > \
                 self.config.heartbeat_timeout:
             age = now - slave.heartbeat_time if slave.heartbeat_time is not None else _NAN
@@ -1047,7 +588,7 @@ class Master:
             joint = in_fault[0]
             code = joint.emcy_code
             texts = '; '.join(f'{j.drive.label} still in {j.state} after its fault reset '
-                              f'({_fault_text(j.emcy_code)})' for j in in_fault)
+                              f'({frames.fault_text(j.emcy_code)})' for j in in_fault)
             self._events.append(Event(joint.config.name, SafetyKind.DRIVE_FAULT,
                                       Severity.WARN,
                                       float(code) if code is not None else _NAN, _NAN, True,
@@ -1067,7 +608,7 @@ class Master:
         self._events.append(refusal)
         return True
 
-    def _arm_fault_reset(self, joint: _Joint, now: float) -> None:
+    def _arm_fault_reset(self, joint: JointRecord, now: float) -> None:
         """Allow one fault reset edge and give the drive time to leave fault."""
         joint.fault_reset = True
         joint.fault_reset_until = now + FAULT_RESET_TIME + 2 * self.config.period
@@ -1103,10 +644,10 @@ class Master:
         if handler is not None and not message.is_remote_frame:
             handler(message)
 
-    def _on_heartbeat(self, slave: _Slave, message: can.Message) -> None:
-        if not message.data:
+    def _on_heartbeat(self, slave: SlaveRecord, message: can.Message) -> None:
+        state = frames.heartbeat_state(message.data)
+        if state is None:
             return
-        state = message.data[0] & 0x7F
         slave.heartbeat_state = state
         slave.heartbeat_time = self._clock()
         if state == cd.NMT_BOOT_UP:
@@ -1121,30 +662,31 @@ class Master:
     def _on_sdo(self, node: int, message: can.Message) -> None:
         self._sdo_answers[node] = bytes(message.data)
 
-    def _on_emcy(self, joint: _Joint, is_drive: bool, message: can.Message) -> None:
-        data = message.data
-        if len(data) < 3 or not self._operational:
+    def _on_emcy(self, joint: JointRecord, is_drive: bool, message: can.Message) -> None:
+        if not self._operational:
             return
-        code = data[0] | (data[1] << 8)
-        if code == 0:
-            return  # "error reset or no error": a fault was cleared
+        emcy = frames.emcy(message.data)
+        if emcy is None:
+            return  # too short, or code 0: a fault was cleared
+        code, register = emcy
         name = cd.ERROR_CODES.get(code, 'unknown error')
         if is_drive:
             joint.emcy_code = code
             self._latch(('drive', joint.config.name), joint.config.name,
                         SafetyKind.DRIVE_FAULT, float(code), _NAN,
                         f'{joint.drive.label}: EMCY 0x{code:04X} {name} (error register '
-                        f'0x{data[2]:02X})')
+                        f'0x{register:02X})')
         else:
             self._latch(('emcy', joint.sensor.node), joint.config.name,
                         SafetyKind.SENSOR_FAULT, float(code), _NAN,
                         f'{joint.sensor.label}: EMCY 0x{code:04X} {name} (error register '
-                        f'0x{data[2]:02X})')
+                        f'0x{register:02X})')
 
-    def _on_drive_tpdo(self, joint: _Joint, message: can.Message) -> None:
-        if len(message.data) != cd.DRIVE_TPDO1.size:
+    def _on_drive_tpdo(self, joint: JointRecord, message: can.Message) -> None:
+        values = frames.drive_tpdo1(message.data)
+        if values is None:
             return
-        status, joint.velocity, joint.current = cd.DRIVE_TPDO1.unpack(message.data)
+        status, joint.velocity, joint.current = values
         before = joint.state
         state = joint.state = cia402.decode_state(status)
         joint.drive.seen = True
@@ -1162,29 +704,29 @@ class Master:
             # (a fault is reported with its code by the supervision).
             self._latch(('drive', name), name, SafetyKind.DRIVE_FAULT, _NAN, _NAN,
                         f'{joint.drive.label} left operation enabled for {state} by itself')
-        self._received(joint, _DRIVE_TPDO)
+        self._received(joint, DRIVE_TPDO)
 
-    def _on_sensor_tpdo1(self, joint: _Joint, message: can.Message) -> None:
-        if len(message.data) != cd.SENSOR_TPDO1.size:
+    def _on_sensor_tpdo1(self, joint: JointRecord, message: can.Message) -> None:
+        values = frames.sensor_tpdo1(message.data)
+        if values is None:
             return
-        joint.position, joint.pressure_a, joint.pressure_b = cd.SENSOR_TPDO1.unpack(
-            message.data)
+        joint.position, joint.pressure_a, joint.pressure_b = values
         joint.stamp = message.timestamp
         joint.sensor.seen = True
-        self._received(joint, _SENSOR_TPDO1)
+        self._received(joint, SENSOR_TPDO1)
 
-    def _on_sensor_tpdo2(self, joint: _Joint, message: can.Message) -> None:
-        if len(message.data) != cd.SENSOR_TPDO2.size:
+    def _on_sensor_tpdo2(self, joint: JointRecord, message: can.Message) -> None:
+        values = frames.sensor_tpdo2(message.data)
+        if values is None:
             return
-        joint.velocity_sensor, joint.status, joint.counter = cd.SENSOR_TPDO2.unpack(
-            message.data)
+        joint.velocity_sensor, joint.status, joint.counter = values
         joint.sensor.seen = True
-        self._received(joint, _SENSOR_TPDO2)
+        self._received(joint, SENSOR_TPDO2)
 
-    def _received(self, joint: _Joint, which: int) -> None:
+    def _received(self, joint: JointRecord, which: int) -> None:
         """Note a TPDO; once a joint's three are in, queue its sample."""
         joint.received |= which
-        if joint.received != _ALL_TPDOS:
+        if joint.received != ALL_TPDOS:
             return
         joint.received = 0
         config = joint.config
@@ -1219,8 +761,7 @@ class Master:
         return True
 
     def _send_nmt(self, command: int, node: int) -> None:
-        self._send(can.Message(arbitration_id=cd.NMT_COB_ID, data=bytes((command, node)),
-                               is_extended_id=False))
+        self._send(frames.nmt(command, node))
 
     def _produce_heartbeat(self, now: float) -> None:
         due = self._heartbeat_due
@@ -1234,7 +775,7 @@ class Master:
     def _send_best_effort_stop(self) -> None:
         """Send every drive quick stop at target 0 and a SYNC, ignoring send errors."""
         for joint in self._joints:
-            cd.DRIVE_RPDO1.pack_into(joint.rpdo.data, 0, cd.CW_QUICK_STOP, 0)
+            frames.pack_rpdo1(joint.rpdo, cd.CW_QUICK_STOP, 0)
             self._send(joint.rpdo)
         self._send(self._sync)
 
@@ -1255,14 +796,3 @@ def _drain(queue: collections.deque[_T]) -> list[_T]:
         except IndexError:
             return items
 
-
-def _fault_text(code: int | None) -> str:
-    if code is None:
-        return 'no EMCY received since it entered fault'
-    return f'error code 0x{code:04X} {cd.ERROR_CODES.get(code, "unknown error")}'
-
-
-def _nmt_name(state: int | None) -> str:
-    if state is None:
-        return 'none (no heartbeat)'
-    return _NMT_STATE_NAMES.get(state, f'0x{state:02X}')
