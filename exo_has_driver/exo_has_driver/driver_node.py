@@ -50,7 +50,7 @@ from std_msgs.msg import Empty
 
 from exo_has_driver import can_dictionary as cd
 from exo_has_driver.errors import HardwareConfigError, MasterStoppedError
-from exo_has_driver.events import Event, SafetyKind, Severity
+from exo_has_driver.events import Condition, Event, SafetyKind, Severity
 from exo_has_driver.hardware.bus import open_bus
 from exo_has_driver.hardware.config import (
     DEFAULT_ACCELERATION,
@@ -66,6 +66,7 @@ from exo_has_driver.hardware.units import DriveUnits
 from exo_has_driver.node_parameters import checked_joints, joint_type_parameters
 from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
 from exo_has_runtime.execution import run_node
+from exo_has_runtime.graph import PublisherWatch
 from exo_has_runtime.joints import JOINT_NAMES, joint_type_of
 from exo_has_runtime.profiles import SAFETY_EVENT_QOS
 from exo_has_runtime.realtime import MAX_PRIORITY, set_realtime_priority
@@ -197,6 +198,18 @@ class Driver(Node):
         command_timeout = declare('command_timeout', DEFAULT_COMMAND_TIMEOUT, read_only(
             'age of the newest command after which the drive holds zero speed [s]',
             floating_point_range=_floats(0.001, 60.0))).value
+        # Dynamically typed: an empty list default would otherwise fix the type to a byte array.
+        stop_sources = declare('stop_sources', ['/watchdog'], ParameterDescriptor(
+            description='full names of the nodes that may publish stop commands beside the '
+                        'controller (string array)', read_only=True,
+            dynamic_typing=True)).value or []
+        source_period = declare('source_check_period', 0.1, read_only(
+            "period of the search of the ROS graph for a second publisher of a joint's state "
+            'or commands [s]', floating_point_range=_floats(0.05, 10.0))).value
+        if not isinstance(stop_sources, list) or not all(
+                isinstance(name, str) and name.startswith('/') for name in stop_sources):
+            msg = f'parameter stop_sources must list full node names, got {stop_sources!r}'
+            raise HardwareConfigError(msg)
         sources = {kind: declare(f'params_{kind}', kind, read_only(
             f'{kind} HAS parameter set (stroke, relief and valve settings): {kind} or a '
             'parameters YAML file')).value for kind in ('hip', 'knee')}
@@ -245,12 +258,41 @@ class Driver(Node):
         self.create_subscription(SafetyEvent, SAFETY_EVENT_TOPIC, self._on_event,
                                  SAFETY_EVENT_QOS)
         self.create_timer(1.0 / rate, self._on_tick)
+        # A second commander of a joint (beside the controller and stop_sources), or any other
+        # publisher of the states this driver publishes: a fault the master latches and holds.
+        self._commanders = PublisherWatch(
+            self, [has_command_topic(j) for j in self._joints], ignore=stop_sources)
+        self._state_sources = PublisherWatch(self, [has_state_topic(j) for j in self._joints])
+        self._joint_of_topic = {
+            topic: joint for watch in (self._commanders, self._state_sources)
+            for topic, joint in zip(watch.topics, self._joints, strict=True)}
+        self.create_timer(source_period, self._on_source_check)
         self.get_logger().info(
             f'driver ready: {", ".join(self._joints)} on {interface}:{channel}, drives '
             f'{[ids[j][0] for j in self._joints]} and sensor boards '
             f'{[ids[j][1] for j in self._joints]} enabled; SYNC at {rate:g} Hz, heartbeats '
             f'{heartbeat_period * 1e3:.0f}/{heartbeat_timeout * 1e3:.0f} ms, bus silent after '
             f'{missing_syncs} SYNCs')
+
+    def _on_source_check(self) -> None:
+        if self._master is None:
+            return
+        now = time.monotonic()
+        held = []
+        for topic, names in self._commanders.poll(now).items():
+            if len(names) > 1:
+                joint = self._joint_of_topic[topic]
+                held.append(Condition(topic, joint, SafetyKind.SECOND_SOURCE, len(names), 1.0,
+                                      f'{joint}: second source: {len(names)} commanders on '
+                                      f'{topic} ({", ".join(names)}), where one is allowed'))
+        for topic, names in self._state_sources.poll(now).items():
+            if names:
+                joint = self._joint_of_topic[topic]
+                held.append(Condition(topic, joint, SafetyKind.SECOND_SOURCE,
+                                      len(names) + 1, 1.0,
+                                      f'{joint}: second source: {", ".join(names)} publishing '
+                                      f'on {topic} beside this driver'))
+        self._master.hold_conditions(held)
 
     def _on_command(self, joint: str, command: HasCommand) -> None:
         if self._master is not None:

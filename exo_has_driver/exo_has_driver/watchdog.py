@@ -27,7 +27,6 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.time import Time
-from rclpy.topic_endpoint_info import TopicEndpointInfo
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Empty
 
@@ -37,6 +36,7 @@ from exo_has_driver.events import Event, Severity
 from exo_has_driver.node_parameters import checked_joints, joint_type_parameters
 from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
 from exo_has_runtime.execution import run_node
+from exo_has_runtime.graph import PublisherWatch
 from exo_has_runtime.joints import JOINT_NAMES, joint_type_of
 from exo_has_runtime.profiles import DEEP_SENSOR_QOS, SAFETY_EVENT_QOS
 from exo_has_runtime.topics import (
@@ -55,20 +55,6 @@ LEVELS = {safety.LEVEL_OK: DiagnosticStatus.OK, safety.LEVEL_WARN: DiagnosticSta
 
 def _floats(low: float, high: float) -> list[FloatingPointRange]:
     return [FloatingPointRange(from_value=low, to_value=high)]
-
-
-#: What rmw reports as the node of an endpoint whose node it does not know yet.
-UNKNOWN_NODE_NAME = '_NODE_NAME_UNKNOWN_'
-
-#: How long a second publisher may stay unnamed before it is reported as it is [s].
-UNNAMED_WAIT_S = 0.3
-
-
-def _publisher_name(info: TopicEndpointInfo) -> str:
-    """Return a publisher's node's full name, or its GID while ROS does not know the node."""
-    if info.node_name == UNKNOWN_NODE_NAME:
-        return f'an unnamed node (publisher gid {bytes(info.endpoint_gid[:12]).hex()})'
-    return f'{info.node_namespace.rstrip("/")}/{info.node_name}'
 
 
 class Watchdog(Node):
@@ -138,7 +124,6 @@ class Watchdog(Node):
         self._deferred = False
         self._last_stop_ns = -1
         self._released_ns = -1
-        self._unnamed_since: dict[str, float] = {}
 
         self._event_publisher = self.create_publisher(SafetyEvent, SAFETY_EVENT_TOPIC,
                                                       SAFETY_EVENT_QOS)
@@ -158,6 +143,10 @@ class Watchdog(Node):
         self.create_subscription(Empty, SAFETY_RESET_TOPIC, self._on_reset, 10)
         self.create_timer(self._period, self._on_tick)
         self.create_timer(1.0, self._on_diagnostics)
+        topics = {has_state_topic(j): j for j in self._joints} | {
+            has_command_topic(j): j for j in self._joints}
+        self._sources = PublisherWatch(self, list(topics))
+        self._joint_of_topic = dict(zip(self._sources.topics, topics.values(), strict=True))
         self.create_timer(source_period, self._on_source_check)
         first = next(iter(self._limits.values()))
         self.get_logger().info(
@@ -244,22 +233,8 @@ class Watchdog(Node):
         if reading is None:
             return
         now, t, core = reading
-        me = (self.get_name(), self.get_namespace())
-        for joint in self._joints:
-            for topic in (has_state_topic(joint), has_command_topic(joint)):
-                name = self.resolve_topic_name(topic)
-                found = [info for info in self.get_publishers_info_by_topic(name)
-                         if (info.node_name, info.node_namespace) != me]
-                # DDS discovery shows a publisher before ROS tells its node's name (that comes
-                # on ros_discovery_info): wait a little for the name, not long for the event.
-                unnamed = [info for info in found if info.node_name == UNKNOWN_NODE_NAME]
-                if unnamed and len(found) > 1:
-                    since = self._unnamed_since.setdefault(name, t)
-                    if t - since < UNNAMED_WAIT_S:
-                        continue
-                self._unnamed_since.pop(name, None)
-                self._emit(now, core.on_sources(joint, name, [_publisher_name(info)
-                                                              for info in found]))
+        for topic, names in self._sources.poll(t).items():
+            self._emit(now, core.on_sources(self._joint_of_topic[topic], topic, names))
 
     def _on_diagnostics(self) -> None:
         reading = self._reading()

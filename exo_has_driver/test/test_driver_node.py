@@ -274,6 +274,43 @@ def test_sigterm_ends_the_driver_cleanly_and_it_stops_the_motors_on_its_way_out(
         devices.stop()
 
 
+def test_a_second_source_of_a_joints_state_stops_every_joint_until_it_is_gone(peers, group):
+    devices = Devices(group)
+    try:
+        devices.wait_for('can devices ready')
+        with NodeProcess(DRIVER, bus_args(group)) as driver:
+            driver.wait_for_output(r'driver ready', timeout_s=20.0)
+            peers.meet(driver)
+            peers.speeds = dict.fromkeys(JOINTS, -20.0)
+            assert peers.run(WAIT, lambda: peers.speeds_near(-20.0, 1.0)), driver.output
+            # A plant left running beside the hardware, say: it publishes the hip's states.
+            rogue = peers.node.create_publisher(HasState, has_state_topic('left_hip'),
+                                                qos_profile_sensor_data)
+            event = peers.wait_event(SafetyEvent.KIND_SECOND_SOURCE)
+            assert (event.joint, event.severity, event.latched) == (
+                'left_hip', SafetyEvent.SEVERITY_FATAL, True)
+            assert event.text == ('left_hip: second source: /driver_peers publishing on '
+                                  '/left_hip/has_state beside this driver')
+            assert peers.run(WAIT, lambda: peers.speeds_near(0.0, 0.5)), driver.output
+            # A reset is refused while it is there, and accepted once it is gone.
+            count = len(peers.events)
+            peers.reset_publisher.publish(Empty())
+            refused = peers.wait_event(SafetyEvent.KIND_SECOND_SOURCE, count)
+            assert refused.severity == SafetyEvent.SEVERITY_WARN
+            assert refused.text.startswith('reset refused: left_hip: second source')
+            peers.node.destroy_publisher(rogue)
+            count = len(peers.events)
+
+            def released():
+                peers.reset_publisher.publish(Empty())
+                return peers.event(SafetyEvent.KIND_RESET, count)
+            assert peers.run(WAIT, lambda: released() is not None), \
+                [e.text for e in peers.events[count:]]
+            assert peers.run(WAIT, lambda: peers.speeds_near(-20.0, 1.0)), driver.output
+    finally:
+        devices.stop()
+
+
 @pytest.mark.parametrize(('override', 'message'), [
     ('joints:=[left_hip,left_ankle]',
      "cannot start: parameter joints: unknown joint 'left_ankle': expected one of left_hip"),

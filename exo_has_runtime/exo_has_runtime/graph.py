@@ -1,11 +1,19 @@
-"""Who else is on a ROS domain: the nodes a short-lived participant discovers there."""
+"""What a node sees of the ROS graph: who else is on a domain, who publishes on a topic.
+
+:func:`nodes_on_domain` lists the nodes a short-lived participant discovers on a domain (a
+session refuses a domain where another runs). :class:`PublisherWatch` names the publishers of
+some topics as a running node sees them (the watchdog and the driver look for a second source
+of a joint's states or commands).
+"""
 
 from __future__ import annotations
 
 import time
+from collections.abc import Collection, Sequence
 
 from rclpy.context import Context
 from rclpy.node import Node
+from rclpy.topic_endpoint_info import TopicEndpointInfo
 
 #: How long a newcomer listens for the nodes already on a domain [s]. ROS 2 carries node names
 #: on ros_discovery_info, which needs the endpoints discovered first: on the 2-vCPU test VM,
@@ -53,3 +61,64 @@ def nodes_on_domain(domain_id: int | None = None, listen_s: float = CENSUS_TIME,
         return sorted(seen)
     finally:
         context.try_shutdown()
+
+
+#: What rmw reports as the node of an endpoint whose node it does not know yet.
+UNKNOWN_NODE_NAME = '_NODE_NAME_UNKNOWN_'
+
+#: How long a publisher may stay unnamed beside another before it is reported as it is [s].
+UNNAMED_WAIT_S = 0.3
+
+
+def publisher_name(info: TopicEndpointInfo) -> str:
+    """Return a publisher's node's full name, or its GID while ROS does not know the node."""
+    if info.node_name == UNKNOWN_NODE_NAME:
+        return f'an unnamed node (publisher gid {bytes(info.endpoint_gid[:12]).hex()})'
+    return f'{info.node_namespace.rstrip("/")}/{info.node_name}'
+
+
+class PublisherWatch:
+    """The publishers of some topics, by node name, as a node's view of the graph shows them.
+
+    DDS discovery shows a publisher before ROS names its node (the names come on
+    ros_discovery_info): a topic where an unnamed publisher stands beside another is held back
+    for up to :data:`UNNAMED_WAIT_S`, so that what is reported names it.
+
+    Parameters
+    ----------
+    node : Node
+        The node whose view is read; its own publishers are left out.
+    topics : Sequence[str]
+        Topics to watch (relative names are resolved as the node resolves them).
+    ignore : Collection[str]
+        Full names of other nodes whose publishers are left out (``/watchdog``).
+
+    """
+
+    def __init__(self, node: Node, topics: Sequence[str], ignore: Collection[str] = ()) -> None:
+        self._node = node
+        self.topics = tuple(node.resolve_topic_name(topic) for topic in topics)
+        self._ignore = {node.get_fully_qualified_name(), *ignore}
+        self._unnamed_since: dict[str, float] = {}
+
+    def poll(self, now_s: float) -> dict[str, list[str]]:
+        """Return the names of each topic's publishers, for the topics ready to be judged.
+
+        Parameters
+        ----------
+        now_s : float
+            Time now [s], on any clock that the calls share.
+
+        """
+        found: dict[str, list[str]] = {}
+        for topic in self.topics:
+            names = [publisher_name(info)
+                     for info in self._node.get_publishers_info_by_topic(topic)]
+            names = [name for name in names if name not in self._ignore]
+            if len(names) > 1 and any(name.startswith('an unnamed') for name in names):
+                since = self._unnamed_since.setdefault(topic, now_s)
+                if now_s - since < UNNAMED_WAIT_S:
+                    continue
+            self._unnamed_since.pop(topic, None)
+            found[topic] = names
+        return found

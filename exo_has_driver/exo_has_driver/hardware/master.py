@@ -71,7 +71,8 @@ import collections
 import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import replace
 from functools import partial
 from typing import TypeVar
 
@@ -115,7 +116,7 @@ DRAIN_MAX = 256
 
 _NAN = math.nan
 # Keys of the conditions that are reported again after they stopped holding for a while.
-_CONDITION_KEYS = frozenset({'missing', 'heartbeat', 'sensor', 'bus state', 'send',
+_CONDITION_KEYS = frozenset({'missing', 'heartbeat', 'sensor', 'bus state', 'send', 'held',
                              'error frame', 'receive'})
 _T = TypeVar('_T')
 _Key = tuple[object, ...]
@@ -148,6 +149,8 @@ class Master:
         # (speed [rad/s], enable, receive time [s]) per joint; swapped whole by set_command.
         self._commands: list[tuple[float, bool, float]] = [(0.0, True, now)] * len(self._joints)
         self._requests: collections.deque[tuple[str, str]] = collections.deque()
+        # Conditions the caller finds (a second publisher of a joint's topics): swapped whole.
+        self._held: tuple[Condition, ...] = ()
         self._samples: collections.deque[JointSample] = collections.deque(maxlen=SAMPLE_QUEUE)
         self._events: collections.deque[Event] = collections.deque()
         self._sdo_answers: dict[int, bytes] = {}
@@ -235,6 +238,16 @@ class Master:
     def request_stop(self, text: str) -> None:
         """Ask for an emergency stop (E_STOP, latched) at the next SYNC."""
         self._requests.append(('stop', text))
+
+    def hold_conditions(self, conditions: Sequence[Condition]) -> None:
+        """Set the fault conditions the caller finds, in place of those it set before.
+
+        They count as the master's own from the next SYNC: each latches the stop once (a FATAL
+        event), and a reset is refused while any is held. Their keys are made the master's
+        (``('held', key)``), so that they cannot meet its own.
+        """
+        self._held = tuple(replace(condition, key=('held', condition.key))
+                           for condition in conditions)
 
     def request_reset(self) -> None:
         """Ask to release the latched stop at the next SYNC (answered by an event)."""
@@ -527,6 +540,7 @@ class Master:
         for key, text in bus_checks:
             if text is not None:
                 conditions.append(Condition((key,), '', SafetyKind.BUS_OFF, _NAN, _NAN, text))
+        conditions.extend(self._held)
         return conditions
 
     def _heartbeat_fault(self, slave: SlaveRecord, now: float) -> str | None:
