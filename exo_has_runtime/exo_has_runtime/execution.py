@@ -96,7 +96,7 @@ def make_executor(kind: str | None = None, context: Context | None = None) -> Ex
 
 
 def spin(nodes: Node | Sequence[Node], executor: Executor | None = None,
-         stop: threading.Event | None = None) -> None:
+         stop: threading.Event | StopRequest | None = None) -> None:
     """Run the nodes' callbacks until ``stop`` is set or their context shuts down.
 
     Parameters
@@ -105,7 +105,7 @@ def spin(nodes: Node | Sequence[Node], executor: Executor | None = None,
         Nodes of one context.
     executor : Executor or None
         The executor; a new one of :func:`executor_kind` by default.
-    stop : threading.Event or None
+    stop : threading.Event or StopRequest or None
         Ends the loop once set (within :data:`SPIN_SLICE_S`).
 
     Raises
@@ -127,24 +127,45 @@ def spin(nodes: Node | Sequence[Node], executor: Executor | None = None,
         executor.shutdown()
 
 
-class _StopOnSignal:
-    """While entered, SIGINT, SIGTERM and SIGHUP set an event instead of interrupting."""
+class StopRequest:
+    """A stop that a signal handler may ask for: a plain flag, no lock.
+
+    ``threading.Event.set`` takes a lock; a signal handler runs in the main thread between two
+    bytecodes, possibly inside another handler's ``Event.set``, and a second signal there
+    (SIGTERM from a dying parent on top of the owner's SIGINT, say) would wait on that lock
+    forever: a node that never ends. Setting an attribute cannot block.
+    """
 
     def __init__(self) -> None:
-        self.event = threading.Event()
+        self._requested = False
+
+    def set(self) -> None:
+        """Ask for the stop (safe in a signal handler, any number of times)."""
+        self._requested = True
+
+    def is_set(self) -> bool:
+        """Whether the stop was asked for."""
+        return self._requested
+
+
+class _StopOnSignal:
+    """While entered, SIGINT, SIGTERM and SIGHUP ask for a stop instead of interrupting."""
+
+    def __init__(self) -> None:
+        self.request = StopRequest()
         self._previous: dict[int, object] = {}
 
-    def __enter__(self) -> threading.Event:
+    def __enter__(self) -> StopRequest:
         for number in STOP_SIGNALS:
             self._previous[number] = signal.signal(number, self._on_signal)
-        return self.event
+        return self.request
 
     def __exit__(self, *exc: object) -> None:
         for number, handler in self._previous.items():
             signal.signal(number, handler)  # type: ignore[arg-type]
 
     def _on_signal(self, number: int, frame: object) -> None:
-        self.event.set()
+        self.request.set()
 
 
 def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | None = None,

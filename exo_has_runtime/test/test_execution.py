@@ -92,3 +92,18 @@ def test_a_stop_signal_ends_a_node_cleanly_with_its_last_words_logged(stop_signa
     assert 'left_hip plant: ' in output and ' periods, ' in output
     assert 'Traceback' not in output
     assert 'Failed to publish log message to rosout' not in output
+
+
+def test_a_burst_of_stop_signals_still_ends_a_node_cleanly():
+    # A second signal used to arrive inside the first one's handler, which held the lock of a
+    # threading.Event: the node waited on that lock forever (a tethered node whose owner was
+    # killed got SIGTERM while it stopped on SIGINT). A burst makes that meeting likely.
+    with NodeProcess('exo_has_sim.plant_node', ['--ros-args', '-p', 'joint:=left_hip']) as plant:
+        plant.wait_for_output('plant ready', timeout_s=120)
+        for _ in range(300):
+            for stop_signal in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+                if plant.process.poll() is not None:
+                    break
+                plant.process.send_signal(stop_signal)
+        assert plant.wait(timeout_s=5) == 0, plant.output
+        assert 'Traceback' not in plant.output
