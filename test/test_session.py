@@ -75,7 +75,10 @@ def test_the_bag_holds_every_topic_at_its_expected_rate(recorded, session, tmp_p
     measured = rates(recorded)
     for topic in [f'/{joint}/{kind}' for joint in JOINT_NAMES
                   for kind in ('has_state', 'has_command')] + [f'/{JOINT_REFERENCE_TOPIC}']:
-        assert measured[topic] == pytest.approx(RATE, rel=0.05), (topic, measured[topic])
+        # 8 %: on this 2-vCPU VM a session's whole-process stalls take a state topic to
+        # 187 Hz at times (bench/README.md, the demo series); a lost or doubled stream is
+        # far outside it either way.
+        assert measured[topic] == pytest.approx(RATE, rel=0.08), (topic, measured[topic])
     assert recorded.counts['/diagnostics'] >= sum(DURATIONS) * 0.8  # 1 Hz
 
 
