@@ -73,6 +73,18 @@ def test_a_parameter_outside_its_bounds_is_refused():
     assert linear.from_search(linear.to_search(3.0)) == pytest.approx(3.0)
 
 
+def test_a_huge_step_moves_a_parameter_to_its_bound_without_overflow():
+    # A Gauss-Newton step from a nearly singular Jacobian once reached exp() unclipped:
+    # OverflowError: math range error, a traceback in the middle of a diagnosis.
+    bulk = Parameter('bulk_modulus', 'Pa', 1.2e9, 2e8, 5e9, 'log scale')
+    assert bulk.moved(1.2e9, 1e6) == pytest.approx(5e9)
+    assert bulk.moved(1.2e9, -1e6) == pytest.approx(2e8)
+    assert bulk.moved(1.2e9, math.log(2.0)) == pytest.approx(2.4e9)
+    offset = Parameter('offset', 'N', -2.0, -10.0, 10.0, 'either sign', scale=0.5)
+    assert offset.moved(0.0, 1e300) == pytest.approx(10.0)
+    assert offset.moved(0.0, 4.0) == pytest.approx(2.0)
+
+
 def random_force(samples, seed, level=60.0):
     """Return a sum of sines, 0.2 to 5 Hz, random phases (the paper's Fig. 13 excitation)."""
     rng = np.random.default_rng(seed)

@@ -138,6 +138,15 @@ class Parameter:
         """Bounds in the search coordinate."""
         return self.to_search(self.lower), self.to_search(self.upper)
 
+    def moved(self, value: float, step: float) -> float:
+        """Return ``value`` moved by ``step`` in the search coordinate, held within the bounds.
+
+        The step is clipped in the search coordinate, before it is mapped back: a Gauss-Newton
+        step from a nearly singular Jacobian can be huge, and ``exp`` of it would overflow.
+        """
+        low, high = self.search_bounds()
+        return self.from_search(min(max(self.to_search(value) + step, low), high))
+
 
 def smooth(values: FloatArray, period: float, derivative: int = 0) -> FloatArray:
     """Savitzky-Golay smoothing (cubic over :data:`SMOOTHING_TIME`) or its derivative."""

@@ -215,8 +215,7 @@ def _screen(plant: Plant, reference: Fit, effects: Sequence[str], windows: Windo
             step = -solve @ r
             r = r + jacobian @ step
             for parameter, z in zip(reference.free, step, strict=True):
-                moved = parameter.from_search(parameter.to_search(values[parameter.name]) + z)
-                values[parameter.name] = min(max(moved, parameter.lower), parameter.upper)
+                values[parameter.name] = parameter.moved(values[parameter.name], float(z))
         cost = float(np.mean(robust_loss(r))) if np.all(np.isfinite(r)) else math.inf
         if effect not in best or cost < best[effect][1]:
             best[effect] = (values, cost)
