@@ -28,9 +28,14 @@ from exo_has_runtime.bag import bag_summary
 from exo_has_runtime.joints import JOINT_NAMES
 from exo_has_runtime.testing.processes import NodeProcess
 
-#: From a second plant's first state to the watchdog's FATAL event [s]: discovery of the
-#: newcomer, the name it waits for (0.3 s at most), and the next source check (every 0.1 s).
+#: From the watchdog seeing a second publisher in its graph to its FATAL event [s]: the next
+#: source check (every 0.1 s) and the wait for the publisher's name (0.3 s at most).
 SECOND_SOURCE_BOUND = 1.0
+
+#: What discovery of a newcomer may add on this 2-vCPU VM [s]: the graph shows a new node's
+#: publishers from under one to about three seconds after it starts, the more the busier the
+#: machine (the same spread as exo_has_runtime.graph.CENSUS_TIME's).
+DISCOVERY_ALLOWANCE = 2.0
 
 
 def start_demo(folder: Path, durations: tuple[float, float] = (30.0, 5.0),
@@ -138,7 +143,7 @@ def test_a_second_plant_on_a_running_session_is_fatal_names_both_and_stops_every
     ready = float(re.search(r'\[(\d+\.\d+)\] \[rogue_plant\]: .*plant ready', rogue_log)[1])
     stamp = event.header.stamp.sec + 1e-9 * event.header.stamp.nanosec
     print(f'second source: event {stamp - ready:+.2f} s from the rogue plant being ready')
-    assert stamp - ready <= SECOND_SOURCE_BOUND
+    assert stamp - ready <= DISCOVERY_ALLOWANCE + SECOND_SOURCE_BOUND
     # The session's report shows it.
     assert running.bag is not None
     data = read_session(running.bag)
