@@ -7,6 +7,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -253,15 +254,29 @@ def test_the_driver_moves_the_joints_stops_on_the_watchdog_and_on_a_drive_fault(
         devices.stop()
 
 
-def test_sigterm_ends_the_driver_cleanly_and_it_stops_the_motors_on_its_way_out(peers, group):
+@contextmanager
+def running_devices(group):
+    """Run the simulated CAN devices until the block ends."""
     devices = Devices(group)
     try:
         devices.wait_for('can devices ready')
+        yield devices
+    finally:
+        devices.stop()
+
+
+def drive_every_joint(peers, driver, speed=-20.0):
+    """Meet a started driver, then command every joint to ``speed`` until it runs there."""
+    driver.wait_for_output(r'driver ready', timeout_s=20.0)
+    peers.meet(driver)
+    peers.speeds = dict.fromkeys(JOINTS, speed)
+    assert peers.run(WAIT, lambda: peers.speeds_near(speed, 1.0)), driver.output
+
+
+def test_sigterm_ends_the_driver_cleanly_and_it_stops_the_motors_on_its_way_out(peers, group):
+    with running_devices(group) as devices:
         with NodeProcess(DRIVER, bus_args(group)) as driver:
-            driver.wait_for_output(r'driver ready', timeout_s=20.0)
-            peers.meet(driver)
-            peers.speeds = dict.fromkeys(JOINTS, -20.0)
-            assert peers.run(WAIT, lambda: peers.speeds_near(-20.0, 1.0)), driver.output
+            drive_every_joint(peers, driver)
             # The master's I/O thread runs on: the signal must still end the process.
             driver.process.send_signal(signal.SIGTERM)
             assert driver.wait(timeout_s=WAIT) == 0, driver.output
@@ -270,45 +285,35 @@ def test_sigterm_ends_the_driver_cleanly_and_it_stops_the_motors_on_its_way_out(
         devices.wait_for('right_knee drive 4:')
         assert re.search(r'right_knee drive 4: operational, (switch on disabled|fault), .*motor '
                          r'-?0\.0 rad/s', devices.output), devices.output
-    finally:
-        devices.stop()
 
 
 def test_a_second_source_of_a_joints_state_stops_every_joint_until_it_is_gone(peers, group):
-    devices = Devices(group)
-    try:
-        devices.wait_for('can devices ready')
-        with NodeProcess(DRIVER, bus_args(group)) as driver:
-            driver.wait_for_output(r'driver ready', timeout_s=20.0)
-            peers.meet(driver)
-            peers.speeds = dict.fromkeys(JOINTS, -20.0)
-            assert peers.run(WAIT, lambda: peers.speeds_near(-20.0, 1.0)), driver.output
-            # A plant left running beside the hardware, say: it publishes the hip's states.
-            rogue = peers.node.create_publisher(HasState, has_state_topic('left_hip'),
-                                                qos_profile_sensor_data)
-            event = peers.wait_event(SafetyEvent.KIND_SECOND_SOURCE)
-            assert (event.joint, event.severity, event.latched) == (
-                'left_hip', SafetyEvent.SEVERITY_FATAL, True)
-            assert event.text == ('left_hip: second source: /driver_peers publishing on '
-                                  '/left_hip/has_state beside this driver')
-            assert peers.run(WAIT, lambda: peers.speeds_near(0.0, 0.5)), driver.output
-            # A reset is refused while it is there, and accepted once it is gone.
-            count = len(peers.events)
-            peers.reset_publisher.publish(Empty())
-            refused = peers.wait_event(SafetyEvent.KIND_SECOND_SOURCE, count)
-            assert refused.severity == SafetyEvent.SEVERITY_WARN
-            assert refused.text.startswith('reset refused: left_hip: second source')
-            peers.node.destroy_publisher(rogue)
-            count = len(peers.events)
+    with running_devices(group), NodeProcess(DRIVER, bus_args(group)) as driver:
+        drive_every_joint(peers, driver)
+        # A plant left running beside the hardware, say: it publishes the hip's states.
+        rogue = peers.node.create_publisher(HasState, has_state_topic('left_hip'),
+                                            qos_profile_sensor_data)
+        event = peers.wait_event(SafetyEvent.KIND_SECOND_SOURCE)
+        assert (event.joint, event.severity, event.latched) == (
+            'left_hip', SafetyEvent.SEVERITY_FATAL, True)
+        assert event.text == ('left_hip: second source: /driver_peers publishing on '
+                              '/left_hip/has_state beside this driver')
+        assert peers.run(WAIT, lambda: peers.speeds_near(0.0, 0.5)), driver.output
+        # A reset is refused while it is there, and accepted once it is gone.
+        count = len(peers.events)
+        peers.reset_publisher.publish(Empty())
+        refused = peers.wait_event(SafetyEvent.KIND_SECOND_SOURCE, count)
+        assert refused.severity == SafetyEvent.SEVERITY_WARN
+        assert refused.text.startswith('reset refused: left_hip: second source')
+        peers.node.destroy_publisher(rogue)
+        count = len(peers.events)
 
-            def released():
-                peers.reset_publisher.publish(Empty())
-                return peers.event(SafetyEvent.KIND_RESET, count)
-            assert peers.run(WAIT, lambda: released() is not None), \
-                [e.text for e in peers.events[count:]]
-            assert peers.run(WAIT, lambda: peers.speeds_near(-20.0, 1.0)), driver.output
-    finally:
-        devices.stop()
+        def released():
+            peers.reset_publisher.publish(Empty())
+            return peers.event(SafetyEvent.KIND_RESET, count)
+        assert peers.run(WAIT, lambda: released() is not None), \
+            [e.text for e in peers.events[count:]]
+        assert peers.run(WAIT, lambda: peers.speeds_near(-20.0, 1.0)), driver.output
 
 
 @pytest.mark.parametrize(('override', 'message'), [

@@ -112,10 +112,11 @@ class PublisherWatch:
         """
         found: dict[str, list[str]] = {}
         for topic in self.topics:
-            names = [publisher_name(info)
+            named = [(publisher_name(info), info.node_name == UNKNOWN_NODE_NAME)
                      for info in self._node.get_publishers_info_by_topic(topic)]
-            names = [name for name in names if name not in self._ignore]
-            if len(names) > 1 and any(name.startswith('an unnamed') for name in names):
+            named = [(name, unknown) for name, unknown in named if name not in self._ignore]
+            names = [name for name, _ in named]
+            if len(names) > 1 and any(unknown for _, unknown in named):
                 since = self._unnamed_since.setdefault(topic, now_s)
                 if now_s - since < UNNAMED_WAIT_S:
                     continue
