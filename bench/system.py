@@ -127,10 +127,15 @@ COMPOSITIONS: dict[str, dict[str, tuple[str, ...]]] = {
 
 
 def run(rate: float, duration: float, folder: Path, priority: int = 0,
-        executor: str = 'events', composition: str = 'plants') -> dict[str, object]:
-    """One session at a rate, on an executor, the plants at a real-time priority; its figures."""
+        executor: str = 'events', composition: str = 'plants',
+        recorder_poll: float | None = None) -> dict[str, object]:
+    """One session at a rate, on an executor, the plants at a real-time priority; its figures.
+
+    ``recorder_poll``: the recorder's ``poll_period`` [s] (None: its default).
+    """
+    recorder = () if recorder_poll is None else ('-p', f'poll_period:={recorder_poll}')
     config = SessionConfig(('walk',), (duration,), rate, realtime_priority=priority,
-                           composition=COMPOSITIONS[composition])
+                           composition=COMPOSITIONS[composition], recorder_arguments=recorder)
     env = {'EXO_HAS_EXECUTOR': executor}
     session = Session(config, folder, env=env)
     session.start(show=lambda line: None)
@@ -155,7 +160,7 @@ def run(rate: float, duration: float, folder: Path, priority: int = 0,
     return {
         'fatal_events': fatal,
         'rate_hz': rate, 'duration_s': duration, 'realtime_priority': priority,
-        'executor': executor, 'composition': composition,
+        'executor': executor, 'composition': composition, 'recorder_poll_s': recorder_poll,
         'cpu_percent_of_one_core': {k: round(v, 1) for k, v in shares.items()},
         'cpu_percent_total': round(sum(shares.values()), 1),
         'plant_periods': periods, 'plant_missed_periods': missed,
@@ -186,47 +191,55 @@ def main() -> None:
     parser.add_argument('--compositions', nargs='+', default=['plants'],
                         choices=tuple(COMPOSITIONS),
                         help='nodes sharing a process (separate: none), taking turns')
+    parser.add_argument('--recorder-poll-periods', type=float, nargs='+', default=[0.02],
+                        help="the recorder's poll_period to compare [s], taking turns (0: a "
+                             'callback per message)')
     args = parser.parse_args()
+    variants = list(itertools.product(args.executors, args.compositions,
+                                      args.recorder_poll_periods))
     results = []
     with tempfile.TemporaryDirectory() as scratch:
         for repeat in range(args.repeats):
             for rate in args.rates:
                 for priority in args.realtime_priorities:
-                    for executor, composition in itertools.product(args.executors,
-                                                                   args.compositions):
+                    for executor, composition, poll in variants:
                         folder = Path(scratch) / (f'rate_{rate:g}_{priority}_{executor}_'
-                                                  f'{composition}_{repeat}')
+                                                  f'{composition}_{poll:g}_{repeat}')
                         results.append(run(rate, args.duration, folder, priority, executor,
-                                           composition))
+                                           composition, poll))
                         print(json.dumps(results[-1], indent=1), flush=True)
     medians = {}
-    for rate, priority, executor, composition in itertools.product(
-            args.rates, args.realtime_priorities, args.executors, args.compositions):
+    for rate, priority, (executor, composition, poll) in itertools.product(
+            args.rates, args.realtime_priorities, variants):
         runs = [r for r in results if r['rate_hz'] == rate
                 and r['realtime_priority'] == priority and r['executor'] == executor
-                and r['composition'] == composition]
-        key = (f'{rate:g} Hz, {executor} executor, {composition} composed, realtime priority '
-               f'{priority}')
+                and r['composition'] == composition and r['recorder_poll_s'] == poll]
+        key = (f'{rate:g} Hz, {executor} executor, {composition} composed, recorder poll '
+               f'{poll:g} s, realtime priority {priority}')
         medians[key] = {
             name: float(np.median([r[name] for r in runs]))
             for name in ('cpu_percent_total', 'missed_percent', 'late_percent')}
+        medians[key]['recorder_cpu_percent'] = float(
+            np.median([r['cpu_percent_of_one_core'].get('recorder', 0.0) for r in runs]))
         medians[key]['probe_missed_percent'] = float(
             np.median([r['probe']['missed_percent'] for r in runs]))
     machine = describe_machine()
     lines = [f'bench/system.py --duration {args.duration:g} --repeats {args.repeats} '
              f'--executors {" ".join(args.executors)} '
              f'--compositions {" ".join(args.compositions)} '
+             f'--recorder-poll-periods {" ".join(f"{p:g}" for p in args.recorder_poll_periods)} '
              f'--realtime-priorities {" ".join(map(str, args.realtime_priorities))}: {machine}']
     for key, median in medians.items():
         lines.append(f'{key}, median of {args.repeats}: total CPU '
-                     f"{median['cpu_percent_total']:.1f} % of one core, missed "
+                     f"{median['cpu_percent_total']:.1f} % of one core (recorder "
+                     f"{median['recorder_cpu_percent']:.1f} %), missed "
                      f"{median['missed_percent']:.3f} %, late {median['late_percent']:.3f} %, "
                      f"idle probe missed {median['probe_missed_percent']:.3f} %")
     for r in results:
         ref, cmd = r['latency_ms']['reference_to_state'], r['latency_ms']['command_to_state']
         lines.append(
             f"{r['rate_hz']:g} Hz, {r['executor']} executor, {r['composition']} composed, "
-            f"realtime priority "
+            f"recorder poll {r['recorder_poll_s']:g} s, realtime priority "
             f"{r['realtime_priority']}: total CPU "
             f"{r['cpu_percent_total']} % of one core; plants "
             f"missed {r['plant_missed_periods']}/{r['plant_periods']} ({r['missed_percent']} %), "

@@ -151,6 +151,8 @@ class SessionConfig:
         Whether to record the load topics too (when a test publishes loads).
     plant_arguments : dict
         Extra ROS arguments per joint's plant (e.g. ``-p load_force:=...``).
+    recorder_arguments : tuple
+        Extra ROS arguments of the recorder (e.g. ``-p poll_period:=0.0``).
     start_delay : float
         Time from the moment the gait publisher's readers (controller, watchdog, recorder)
         have matched to its first reference [s]: the nodes settle at standing first.
@@ -188,6 +190,7 @@ class SessionConfig:
     record: bool = True
     loads: bool = False
     plant_arguments: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    recorder_arguments: tuple[str, ...] = ()
     start_delay: float = 2.0
     stale_periods: int = 100
     load_mass: dict[str, float] = field(default_factory=lambda: {'hip': 50.0, 'knee': 25.0})
@@ -213,7 +216,8 @@ def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
     if config.record and bag is not None:
         topics = ','.join(f"'{t}'" for t in recorded_topics(config.loads))
         specs.append(NodeSpec('recorder', 'exo_has_runtime.recorder', (
-            '--ros-args', '-p', f'output:={bag}', '-p', f'topics:=[{topics}]'),
+            '--ros-args', '-p', f'output:={bag}', '-p', f'topics:=[{topics}]',
+            *config.recorder_arguments),
             ready=r'recording', stage=0, node_class='exo_has_runtime.recorder:Recorder'))
     if config.hardware == 'can':
         channel = config.can_channel or random_multicast_group()

@@ -1,17 +1,21 @@
 """Record topics to a bag (rosbag2, MCAP): the CDR bytes as received, stamped at reception.
 
 Each message is written as received, never deserialised: a raw subscription hands over its
-serialized bytes. Its bag time is the node clock's time when its callback runs, as rosbag2's
-``recv_timestamp`` is (the publication time would need the callback's ``MessageInfo``, which
-rclpy 7.1.6's EventsExecutor cannot pass: see :mod:`exo_has_runtime.execution`). That is the
-system time, read with ``time.time_ns()`` (the same clock at a thirtieth of the cost of
-``Clock.now()``), or under ``use_sim_time`` the simulated time (0 before the first ``/clock``);
-which one is checked again every ``discovery_period``. Topics and types come from graph
-discovery, every ``discovery_period``; a topic is subscribed once it has a publisher, with the
-QoS :mod:`exo_has_runtime.recording` derives from the publishers' offers. The bag is flushed as
-a complete chunk every ``flush_period``, so a killed recorder loses at most that much
-(``exo-has bag recover``), and is closed (``metadata.yaml`` written) when the node is
-destroyed, which :func:`~exo_has_runtime.execution.run_node` does on SIGINT and SIGTERM.
+serialized bytes. The subscriptions are taken in batches every ``poll_period``
+(:mod:`exo_has_runtime.polling`): a recorder has nothing to do the moment a message arrives,
+and a callback per message would wake the executor some 2000 times a second in a session
+(bench/README.md, "Recorder"). Its bag time is the system time at which DDS received it, as
+rosbag2's ``recv_timestamp`` is; under ``use_sim_time`` it is the simulated time of the batch
+(0 before the first ``/clock``), up to ``poll_period`` after the reception. With
+``poll_period`` 0 each message has its callback and its bag time is read there (the system
+time with ``time.time_ns()``, the same clock at a thirtieth of the cost of ``Clock.now()``).
+Whether simulated time is active is checked again every ``discovery_period``. Topics and types
+come from graph discovery, every ``discovery_period``; a topic is subscribed once it has a
+publisher, with the QoS :mod:`exo_has_runtime.recording` derives from the publishers' offers.
+The bag is flushed as a complete chunk every ``flush_period``, so a killed recorder loses at
+most that much (``exo-has bag recover``), and is closed (``metadata.yaml`` written, after a
+last batch is taken) when the node is destroyed, which
+:func:`~exo_has_runtime.execution.run_node` does on SIGINT and SIGTERM.
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ from exo_has_runtime.bag import BagWriter, offered_qos
 from exo_has_runtime.errors import BagError
 from exo_has_runtime.execution import run_node
 from exo_has_runtime.message_types import message_class
+from exo_has_runtime.polling import Inbox, Taken
 from exo_has_runtime.recording import (
     QosChoice,
     bag_path,
@@ -62,6 +67,10 @@ class Recorder(Node):
             floating_point_range=[FloatingPointRange(from_value=0.05, to_value=60.0)]))
         self.declare_parameter('compress', False, ParameterDescriptor(
             description='compress the chunks with zstd'))
+        self.declare_parameter('poll_period', 0.02, ParameterDescriptor(
+            description='period of the batches taken from the subscriptions [s]; 0: a '
+                        'callback per message',
+            floating_point_range=[FloatingPointRange(from_value=0.0, to_value=1.0)]))
         topics = self.get_parameter('topics').value or []
         if not isinstance(topics, list) or not all(isinstance(t, str) for t in topics):
             msg = f'parameter topics must be a list of topic names, got {topics!r}'
@@ -78,8 +87,13 @@ class Recorder(Node):
         # Topic: (subscription, the QoS it asks for).
         self._recorded: dict[str, tuple[Subscription, QosChoice]] = {}
         self._given_up: set[str] = set()
-        # Discovery and disk writes run on wall time, also while simulated time stands still.
+        # Discovery, batches and disk writes run on wall time, also while simulated time
+        # stands still.
         steady = Clock(clock_type=ClockType.STEADY_TIME)
+        poll_period = self.get_parameter('poll_period').value
+        self._inbox = Inbox(self) if poll_period > 0.0 else None
+        if self._inbox is not None:
+            self.create_timer(poll_period, self._take_batch, clock=steady)
         self.create_timer(self.get_parameter('discovery_period').value, self._discover,
                           clock=steady)
         self.create_timer(self.get_parameter('flush_period').value, self._flush, clock=steady)
@@ -99,10 +113,8 @@ class Recorder(Node):
                 self.get_logger().warning(
                     f'{topic}: a publisher offers less than the recording asked for; '
                     f'subscribing again {_describe(weaker)}')
-                self.destroy_subscription(subscription)
-                self._recorded[topic] = (self.create_subscription(
-                    subscription.msg_type, topic, self._writer_for(topic), qos_profile(weaker),
-                    raw=True), weaker)
+                self._recorded[topic] = (self._subscription(
+                    subscription, subscription.msg_type, topic, qos_profile(weaker)), weaker)
         added = 0
         for topic, msgtype in new:
             offers = self._offers(topic)
@@ -121,9 +133,37 @@ class Recorder(Node):
             self._give_up(topic, str(exc))
             return False
         choice = subscription_qos(offers)
-        self._recorded[topic] = (self.create_subscription(
-            message_type, topic, self._writer_for(topic), qos_profile(choice), raw=True), choice)
+        self._recorded[topic] = (
+            self._subscription(None, message_type, topic, qos_profile(choice)), choice)
         return True
+
+    def _subscription(self, replaced: Subscription | None, message_type: type, topic: str,
+                      qos: QoSProfile) -> Subscription:
+        """Subscribe (raw) to a topic for the bag, in place of ``replaced`` if given."""
+        if self._inbox is not None:
+            if replaced is not None:
+                self._write(self._inbox.unsubscribe(topic))
+            return self._inbox.subscribe(topic, message_type, topic, qos, raw=True)
+        if replaced is not None:
+            self.destroy_subscription(replaced)
+        return self.create_subscription(message_type, topic, self._writer_for(topic), qos,
+                                        raw=True)
+
+    def _take_batch(self) -> None:
+        if self._inbox is not None:
+            self._write(self._inbox.drain())
+
+    def _write(self, batch: list[Taken]) -> None:
+        if self._bag is None or not batch:
+            return
+        write = self._bag.write
+        if self._sim_time:
+            now_ns = self.get_clock().now().nanoseconds
+            for taken in batch:
+                write(taken.topic, now_ns, taken.data)
+        else:
+            for taken in batch:
+                write(taken.topic, taken.received_ns, taken.data)
 
     def _offers(self, topic: str) -> list[Any]:
         return [info.qos_profile for info in self.get_publishers_info_by_topic(topic)]
@@ -146,7 +186,11 @@ class Recorder(Node):
             self._bag.flush()
 
     def destroy_node(self) -> None:
-        """Close the bag (metadata.yaml written), log its counts, and leave the graph."""
+        """Take a last batch, close the bag (metadata.yaml written), log its counts, leave."""
+        inbox, self._inbox = getattr(self, '_inbox', None), None
+        if inbox is not None:
+            self._write(inbox.drain())
+            inbox.destroy()
         bag, self._bag = getattr(self, '_bag', None), None
         if bag is not None:
             try:

@@ -43,15 +43,19 @@ def read_back(bag):
         return list(messages)
 
 
+# Batches a second apart: the last messages reach the bag only through the batch taken when
+# the recorder stops. A callback per message: poll_period 0.
+@pytest.mark.parametrize('poll_period', [1.0, 0.0], ids=['batches', 'callbacks'])
 @pytest.mark.parametrize('stop_signal', [signal.SIGINT, signal.SIGTERM],
                          ids=['SIGINT', 'SIGTERM'])
 def test_the_recorder_closes_its_bag_with_every_message_on_sigint_and_sigterm(
-        tmp_path, ros_context, stop_signal):
+        tmp_path, ros_context, stop_signal, poll_period):
     bag = tmp_path / 'bag'
     node = Node('test_publisher', context=ros_context)
     command_out = node.create_publisher(HasCommand, '/a', RELIABLE)
     joints_out = node.create_publisher(JointState, '/b', RELIABLE)
-    with NodeProcess(RECORDER, recorder_args(bag, "topics:=['/a', 'b']")) as recorder:
+    arguments = recorder_args(bag, "topics:=['/a', 'b']", f'poll_period:={poll_period}')
+    with NodeProcess(RECORDER, arguments) as recorder:
         recorder.wait_for_output('opened bag', timeout_s=60)
         wait_for_subscribers([command_out, joints_out])
         recorder.wait_for_output(rf'recording 2 topics to {re.escape(str(bag))}')
