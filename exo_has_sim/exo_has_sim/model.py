@@ -1,12 +1,14 @@
 """The nonlinear HAS model of Sun et al. (2021), Eqs. 2-8, with the effects it leaves out.
 
-One joint's state is ``[x, v, p_A, n, s, void]`` followed by five cumulative volumes used to
+One joint's state is ``[x, v, p_A, n, s, void, n_dot]`` followed by five cumulative volumes used to
 check the mass balance:
 
 - ``x`` cylinder extension from its retracted end [m], ``v`` its velocity [m/s];
 - ``p_A`` rodless-chamber gauge pressure [Pa]; the rod chamber is open to the elastic tank at
   atmospheric pressure (paper, section 3.3: p_i = 0), so p_B = 0;
-- ``n`` motor (= pump) speed [rad/s], following the command through a first-order speed loop;
+- ``n`` motor (= pump) speed [rad/s], following the command through a first-order speed loop
+  (the paper's), or a second-order one when ``motor_damping_ratio`` is set, whose rate
+  ``n_dot`` [rad/s^2] is then a state too (zero for a first-order loop);
 - ``s`` compact-valve spool position [-]: 1 assist (pump to rodless chamber), 0 free (both
   chambers to the tank), pushed by the pressure at the valve's inlet: the pump's once the motor
   turns, the chamber's while in assist (section 2.3.3, :func:`spool_drive`);
@@ -38,16 +40,16 @@ from exo_has_sim.parameters import HasParameters
 from exo_has_sim.valve import ValveMode
 
 # State layout.
-X, V, PA, N, S, VOID = 0, 1, 2, 3, 4, 5
-VOL_PUMP, VOL_LEAK, VOL_RELIEF, VOL_FREE, VOL_COMPRESSION = 6, 7, 8, 9, 10
-N_DYNAMIC = 6
-N_STATE = 11
+X, V, PA, N, S, VOID, NDOT = 0, 1, 2, 3, 4, 5, 6
+VOL_PUMP, VOL_LEAK, VOL_RELIEF, VOL_FREE, VOL_COMPRESSION = 7, 8, 9, 10, 11
+N_DYNAMIC = 7
+N_STATE = 12
 
 # Packed parameter layout.
 (I_DP, I_NMAX, I_TAU_M, I_LN, I_LC, I_E, I_AA, I_AB, I_AE, I_STROKE, I_V0, I_M, I_B, I_PREL,
  I_GREL, I_GFREE, I_NENG, I_NREL, I_TAU_S, I_PCAV, I_KSTOP, I_CSTOP, I_FC, I_FS, I_VS, I_VEPS,
- I_NDZ, I_LN2, I_PCRACK, I_GCRACK, I_AIR, I_PHOLD, I_PDROP) = range(33)
-N_PACKED = 33
+ I_NDZ, I_LN2, I_PCRACK, I_GCRACK, I_AIR, I_PHOLD, I_PDROP, I_ZETA) = range(34)
+N_PACKED = 34
 
 ATMOSPHERIC_PRESSURE = 101_325.0  # Pa
 CAVITATION_TIME_CONSTANT = 1.0e-4  # s, relaxation of the pressure onto the cavitation floor
@@ -98,6 +100,7 @@ def pack(params: HasParameters) -> np.ndarray:
     packed[I_AIR] = e.entrained_air
     packed[I_PHOLD] = params.valve_hold_pressure
     packed[I_PDROP] = params.valve_drop_pressure
+    packed[I_ZETA] = params.motor_damping_ratio
     return packed
 
 
@@ -231,7 +234,14 @@ def rhs(y: np.ndarray, n_cmd: float, f_load: float, prm: np.ndarray,
     dy[X] = v
     dy[V] = force / prm[I_M]
     dy[PA] = dp
-    dy[N] = (command - n) / prm[I_TAU_M]
+    zeta = prm[I_ZETA]
+    if zeta > 0.0:  # second order, the same low-frequency lag: omega = 2 zeta / tau
+        omega = 2.0 * zeta / prm[I_TAU_M]
+        dy[N] = y[NDOT]
+        dy[NDOT] = omega * (omega * (command - n) - 2.0 * zeta * y[NDOT])
+    else:
+        dy[N] = (command - n) / prm[I_TAU_M]
+        dy[NDOT] = -y[NDOT] / prm[I_TAU_M]  # unused; stays at rest
     dy[S] = (spool_target(n, p, s, prm) - s) / prm[I_TAU_S]
     dy[VOID] = dvoid
     dy[VOL_PUMP] = q_pump
@@ -362,7 +372,15 @@ def jacobian(y: np.ndarray, n_cmd: float, f_load: float, prm: np.ndarray,
     jac[V, X] = d_force_x / prm[I_M]
     jac[V, V] = d_force_v / prm[I_M]
     jac[V, PA] = prm[I_AA] / prm[I_M]
-    jac[N, N] = -1.0 / prm[I_TAU_M]
+    zeta = prm[I_ZETA]
+    if zeta > 0.0:
+        omega = 2.0 * zeta / prm[I_TAU_M]
+        jac[N, NDOT] = 1.0
+        jac[NDOT, N] = -omega * omega
+        jac[NDOT, NDOT] = -2.0 * zeta * omega
+    else:
+        jac[N, N] = -1.0 / prm[I_TAU_M]
+        jac[NDOT, NDOT] = -1.0 / prm[I_TAU_M]
     _, driver, slope = spool_drive(n, p, s, prm)
     jac[S, S] = -1.0 / prm[I_TAU_S]
     if driver == 0:

@@ -22,6 +22,10 @@ from exo_has_runtime.params_yaml import read_yaml_file
 from exo_has_sim.errors import ParameterError
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / 'config'
+#: Values a parameters file may leave out, and what they then are.
+OPTIONAL_VALUES: dict[str, float] = {'motor_damping_ratio': 0.0}
+#: Largest relative standard uncertainty a parameters file may state (500 %).
+MAX_UNCERTAINTY = 5.0
 
 
 @dataclass(frozen=True)
@@ -94,6 +98,11 @@ class HasParameters:
     The names follow Sun et al. (2021): D_p pump_displacement, L_n pump_leakage, L_c
     cylinder_leakage, E_y bulk_modulus, A_A and A_B from the bore and rod diameters, V_A
     dead_volume, M_a piston_mass, M_L load_mass, B damping.
+
+    The motor's speed loop is first order with ``motor_time_constant`` (the paper's), or, when
+    ``motor_damping_ratio`` is positive, second order with that damping ratio and the same
+    low-frequency lag: natural frequency ``2 zeta / motor_time_constant``. A parameters file
+    may leave ``motor_damping_ratio`` out (:data:`OPTIONAL_VALUES`).
     """
 
     joint_type: str
@@ -135,8 +144,10 @@ class HasParameters:
     link_od: float
     angle_offset: float
     cylinder_length_min: float
+    motor_damping_ratio: float = 0.0
     effects: Effects = field(default_factory=Effects)
     provenance: Mapping[str, str] = field(default_factory=dict, compare=False)
+    uncertainty: Mapping[str, float] = field(default_factory=dict, compare=False)
 
     @property
     def area_a(self) -> float:
@@ -174,6 +185,7 @@ _RANGES: dict[str, tuple[float, float, str]] = {
     'pump_displacement': (1e-9, 1e-5, 'm^3/rad (0.4 mL/r is 6.37e-8)'),
     'motor_speed_max': (10.0, 2000.0, 'rad/s (4000 r/min is 418.9)'),
     'motor_time_constant': (1e-4, 0.5, 's'),
+    'motor_damping_ratio': (0.0, 5.0, '- (0: a first-order speed loop)'),
     'motor_torque_nominal': (0.01, 100.0, 'N m'),
     'motor_torque_peak': (0.01, 100.0, 'N m'),
     'pump_mechanical_efficiency': (0.1, 1.0, '-'),
@@ -274,9 +286,17 @@ def check_parameters(params: HasParameters, where: str = 'parameters') -> None:
 
 
 def parameters_from_mapping(values: Mapping[str, Any], provenance: Mapping[str, str],
-                            where: str) -> HasParameters:
-    """Build and check a parameter set from the ``has`` mapping of a parameters file."""
-    names = [f.name for f in fields(HasParameters) if f.name not in ('effects', 'provenance')]
+                            where: str,
+                            uncertainty: Mapping[str, Any] | None = None) -> HasParameters:
+    """Build and check a parameter set from the ``has`` mapping of a parameters file.
+
+    ``uncertainty`` holds the relative standard uncertainty of values known only roughly
+    (0.3: +-30 %), as the file's ``uncertainty:`` section states it; a diagnosis takes it as
+    the spread of its prior on that value.
+    """
+    names = [f.name for f in fields(HasParameters)
+             if f.name not in ('effects', 'provenance', 'uncertainty')]
+    values = {**OPTIONAL_VALUES, **values}
     missing = [name for name in names if name not in values]
     unknown = sorted(set(values) - {*names, 'effects'})
     if missing:
@@ -299,8 +319,19 @@ def parameters_from_mapping(values: Mapping[str, Any], provenance: Mapping[str, 
     numbers = {name: values[name] for name in names if name != 'joint_type'}
     for name, value in numbers.items():
         _check_value(where, name, value, _RANGES)
+    spreads = dict(uncertainty or {})
+    for name, value in spreads.items():
+        if name not in numbers:
+            msg = f'{where}: uncertainty of an unknown parameter {name!r}'
+            raise ParameterError(msg)
+        if isinstance(value, bool) or not isinstance(value, (int, float)) \
+                or not 0.0 < float(value) <= MAX_UNCERTAINTY:
+            msg = (f'{where}: uncertainty.{name} must be a relative standard uncertainty in '
+                   f'(0, {MAX_UNCERTAINTY:g}] (0.3 for +-30 %), got {value!r}')
+            raise ParameterError(msg)
     params = HasParameters(joint_type=str(values['joint_type']), effects=effects,
                            provenance=dict(provenance),
+                           uncertainty={k: float(v) for k, v in spreads.items()},
                            **{k: float(v) for k, v in numbers.items()})
     check_parameters(params, where)
     return params
@@ -327,4 +358,9 @@ def load_parameters(source: str | Path) -> HasParameters:
     except (KeyError, TypeError) as exc:
         msg = f'{path}: expected /**: ros__parameters: has: {{...}} (a ROS 2 parameters file)'
         raise ParameterError(msg) from exc
-    return parameters_from_mapping(values, section.get('provenance') or {}, str(path))
+    uncertainty = section.get('uncertainty') or {}
+    if not isinstance(uncertainty, Mapping):
+        msg = f'{path}: uncertainty must be a mapping of parameter names to relative spreads'
+        raise ParameterError(msg)
+    return parameters_from_mapping(values, section.get('provenance') or {}, str(path),
+                                   uncertainty)

@@ -67,8 +67,8 @@ DEFAULT_STEP = 2.0e-3
 #: Default relative tolerance of the step-size control (bench/simulator.py: about 0.1 to 0.2 mm
 #: of position error in walking against solve_ivp at rtol 1e-10, where 0.65 mm is allowed).
 DEFAULT_RTOL = 1.0e-2
-# Absolute tolerance of each dynamic state (m, m/s, Pa, rad/s, -, m^3).
-_ATOL = np.array([1e-6, 1e-4, 1e4, 1e-1, 1e-3, 1e-9])
+# Absolute tolerance of each dynamic state (m, m/s, Pa, rad/s, -, m^3, rad/s^2).
+_ATOL = np.array([1e-6, 1e-4, 1e4, 1e-1, 1e-3, 1e-9, 1e2])
 
 
 @njit(cache=True)

@@ -128,3 +128,34 @@ def test_a_span_scores_after_its_burn_in():
     span = Span(np.array([10, 50]), 5, burn_in=3)
     assert span.steps == 8
     assert span.scored().tolist() == [[14, 15, 16, 17, 18], [54, 55, 56, 57, 58]]
+
+
+def _evaluation(level, spread, seed, windows=30, horizon=50):
+    """Residuals of RMS about ``level`` in each window, varying by ``spread`` between them."""
+    from exo_has_sim.diagnosis.fitting import Evaluation
+
+    rng = np.random.default_rng(seed)
+    scale = level * np.exp(rng.normal(0.0, spread, (windows, 1, 1)))
+    predicted = scale * rng.normal(0.0, 1.0, (windows, horizon, 1))
+    return Evaluation(predicted, np.zeros_like(predicted), np.ones(1))
+
+
+def _score(effect, validation, reference):
+    from exo_has_sim.diagnosis.fitting import Fit
+    from exo_has_sim.diagnosis.selection import Score
+
+    return Score((effect,), Fit({}, ()), validation, reference, 1)
+
+
+def test_an_effect_that_predicts_as_well_as_the_named_one_is_called_indistinguishable():
+    from exo_has_sim.diagnosis.selection import rivals
+
+    reference = _evaluation(1.0, 0.1, 1)
+    named = _score('relief_valve', _evaluation(0.3, 0.1, 2), reference)
+    twin = _score('quadratic_leakage', _evaluation(0.3, 0.1, 3), reference)
+    worse = _score('pump_deadzone', _evaluation(0.6, 0.1, 4), reference)
+    useless = _score('entrained_air', _evaluation(1.0, 0.1, 5), reference)
+    assert all(s.significant for s in (named, twin, worse)) and not useless.significant
+    assert rivals([named, twin, worse, useless]) == ['quadratic_leakage']
+    assert rivals([named, worse]) == []
+    assert rivals([useless, named]) == []  # nothing named: no rival either

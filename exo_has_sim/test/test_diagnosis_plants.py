@@ -10,7 +10,7 @@ from exo_has_sim import model
 from exo_has_sim.diagnosis.compare import Span, make_windows
 from exo_has_sim.diagnosis.data import Limits, check_columns
 from exo_has_sim.diagnosis.diagnose import diagnose
-from exo_has_sim.diagnosis.fitting import evaluate, fit_parameters, output_weights
+from exo_has_sim.diagnosis.fitting import evaluate, fit_parameters, output_weights, robust_rms
 from exo_has_sim.diagnosis.plants import HasPlant, MassPlant, Parameter, _mass_windows
 from exo_has_sim.errors import DiagnosisError
 from exo_has_sim.parameters import load_parameters
@@ -83,6 +83,48 @@ def test_a_huge_step_moves_a_parameter_to_its_bound_without_overflow():
     offset = Parameter('offset', 'N', -2.0, -10.0, 10.0, 'either sign', scale=0.5)
     assert offset.moved(0.0, 1e300) == pytest.approx(10.0)
     assert offset.moved(0.0, 4.0) == pytest.approx(2.0)
+
+
+def test_a_prior_decides_what_the_data_leave_open_and_gives_way_where_they_speak():
+    force = random_force(4000, 5)
+    rng = np.random.default_rng(6)
+    position = simulate_mass(force, 12.0, 80.0) + rng.normal(0.0, 2e-5, 4000)
+    plant = MassPlant(mass_measurement(force, position), mass=20.0)
+    windows = make_windows(4000, 100, plant.first_start, 20)
+    _, friction, offset = plant.baseline
+    # Weighted as diagnose() weighs: residual RMS 1 under the fit without a prior.
+    first = fit_parameters(plant, plant.baseline, {}, windows.estimation_span,
+                           output_weights(plant))
+    weights = output_weights(plant) / robust_rms(first.residual)
+    # 'tilt' is a name the mass plant does not use: the data say nothing of it.
+    for prior, tilt_expected in ((None, 8.0), (0.3, 5.0)):
+        mass = Parameter('mass', 'kg', 20.0, 1.0, 400.0, 'moving mass M', prior=prior)
+        tilt = Parameter('tilt', 'rad', 5.0, 0.1, 100.0, 'not in the model', prior=prior)
+        fit = fit_parameters(plant, (mass, friction, offset, tilt), {}, windows.estimation_span,
+                             weights, initial={'mass': first.values['mass'], 'tilt': 8.0})
+        assert fit.residual.size == windows.estimation_span.count * 100  # data only
+        assert_allclose(fit.values['tilt'], tilt_expected, rtol=0.02)
+        # A prior of +-35 % around a wrong 20 kg weighs one window: the data's 12 kg wins.
+        assert_allclose(fit.values['mass'], 12.0, rtol=0.05)
+    with pytest.raises(DiagnosisError, match=r'a prior -1\.0 must be positive'):
+        Parameter('mass', 'kg', 20.0, 1.0, 400.0, 'negative prior', prior=-1.0)
+
+
+def test_the_has_baseline_re_estimates_the_nuisances_with_the_stated_priors():
+    hip = load_parameters('hip')
+    measurement = check_columns(has_closed_loop(hip, seconds=3.0), 'has', 'own model')
+    baseline = {p.name: p for p in HasPlant(measurement, hip).baseline}
+    assert list(baseline) == ['bulk_modulus', 'pump_leakage', 'damping', 'motor_time_constant',
+                              'pump_displacement', 'dead_volume']
+    assert baseline['bulk_modulus'].prior is None  # hard to know: the data decide
+    assert baseline['motor_time_constant'].prior == pytest.approx(math.log1p(0.3))
+    assert baseline['pump_displacement'].prior == pytest.approx(math.log1p(0.15))
+    wide = hip.replace(uncertainty={'dead_volume': 2.0})
+    assert HasPlant(measurement, wide).baseline[5].prior == pytest.approx(math.log1p(2.0))
+    # A candidate's nuisance values reach the simulated parameter set.
+    params, _ = HasPlant(measurement, hip).candidate_parameters(
+        {'motor_time_constant': 0.007, 'dead_volume': 9e-6})
+    assert (params.motor_time_constant, params.dead_volume) == (0.007, 9e-6)
 
 
 def random_force(samples, seed, level=60.0):
@@ -176,3 +218,21 @@ def test_a_transport_delay_in_the_project_model_s_data_is_named_with_its_size():
     assert low < 0.008 < high
     assert_allclose(result.sizes()['transport_delay'], 0.008, rtol=0.05)
     assert isinstance(result.windows.span, Span)
+
+
+def test_a_second_order_motor_loop_is_taken_as_the_baseline_not_named_a_transport_delay():
+    hip = load_parameters('hip')
+    truth = hip.replace(motor_damping_ratio=0.5, bulk_modulus=1.1e9)
+    rng = np.random.default_rng(8)
+    columns = has_closed_loop(truth, seconds=12.0, seed=2)
+    for name, noise in (('position', 1e-5), ('pressure_a', 2e4), ('motor_speed', 1.0)):
+        columns[name] = columns[name] + rng.normal(0.0, noise, len(columns['time']))
+    plant = HasPlant(check_columns(columns, 'has', 'own model'), hip)
+    assert 'second_order_motor' in plant.alternatives and 'second_order_motor' not in plant.effects
+    result = diagnose(plant, effects=('transport_delay', 'coulomb_friction'))
+    assert result.structure == ('second_order_motor',) and result.causes == ()
+    assert_allclose(result.baseline.values['motor_damping_ratio'], 0.5, rtol=0.15)
+    assert result.to_json()['baseline_structure'] == ['second_order_motor']
+    # A parameter set whose loop is second order already re-estimates its damping ratio.
+    assert HasPlant(plant.measurement, truth).alternatives == {}
+    assert 'motor_damping_ratio' in [p.name for p in HasPlant(plant.measurement, truth).baseline]

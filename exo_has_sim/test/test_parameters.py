@@ -10,7 +10,7 @@ from exo_has_sim.parameters import CONFIG_DIR, HasParameters, load_parameters
 def test_every_value_of_both_sets_has_its_provenance(joint):
     params = load_parameters(joint)
     names = [f.name for f in dataclasses.fields(HasParameters)
-             if f.name not in ('joint_type', 'effects', 'provenance')]
+             if f.name not in ('joint_type', 'effects', 'provenance', 'uncertainty')]
     missing = [name for name in names if not params.provenance.get(name, '').strip()]
     assert missing == []
     for name in names:
@@ -84,3 +84,22 @@ def test_the_parameter_files_are_ros2_params_files_that_rcl_reads():
         node.destroy_node()
     finally:
         context.try_shutdown()
+
+
+def test_the_stated_uncertainties_are_read_and_a_bad_one_is_named(tmp_path):
+    params = load_parameters('hip')
+    assert params.uncertainty == {'motor_time_constant': 0.3, 'pump_displacement': 0.15,
+                                  'dead_volume': 0.3}
+    text = (CONFIG_DIR / 'hip.yaml').read_text()
+    path = tmp_path / 'p.yaml'
+    for stated, message in (('dead_volume: 30', r'uncertainty.dead_volume must be a relative'),
+                            ('dead_volume: -0.1', r'uncertainty.dead_volume must be a relative'),
+                            ("dead_volume: 'wide'", r'uncertainty.dead_volume must be'),
+                            ('dead_volum: 0.3',
+                             "uncertainty of an unknown parameter 'dead_volum'")):
+        path.write_text(text.replace('      dead_volume: 0.3\n', f'      {stated}\n'))
+        with pytest.raises(ParameterError, match=message):
+            load_parameters(path)
+    path.write_text(text.replace('    uncertainty:\n', '    uncertainty: 0.3\n    ignored:\n'))
+    with pytest.raises(ParameterError, match='uncertainty must be a mapping'):
+        load_parameters(path)

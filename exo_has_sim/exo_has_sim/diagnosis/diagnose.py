@@ -9,7 +9,9 @@
    baseline fit, so that position, pressure and motor speed count alike whatever their units
    and noise, then the baseline fit (the plant's hard-to-know parameters) with those weights;
 4. the paper's third-order transfer function (:mod:`~exo_has_sim.diagnosis.transfer`);
-5. forward selection of effects (:mod:`~exo_has_sim.diagnosis.selection`);
+5. forward selection of effects (:mod:`~exo_has_sim.diagnosis.selection`), in which the
+   baseline's alternative structures (a second-order motor loop) compete with the effects
+   and, taken first, become the baseline;
 6. residual tests of the baseline and the extended model, and the signatures of the causes in
    the baseline's residuals (:mod:`~exo_has_sim.diagnosis.residuals`).
 """
@@ -52,7 +54,7 @@ from exo_has_sim.diagnosis.residuals import (
     cross_correlation,
     signatures,
 )
-from exo_has_sim.diagnosis.selection import REFERENCE_TOLERANCE, Score, forward_selection
+from exo_has_sim.diagnosis.selection import REFERENCE_TOLERANCE, Score, forward_selection, rivals
 from exo_has_sim.diagnosis.transfer import ThirdOrderModel, identify_third_order
 from exo_has_sim.errors import DiagnosisError, FitError, MeasurementError
 from exo_has_sim.parameters import load_parameters
@@ -102,6 +104,9 @@ class Diagnosis:
         The signatures of the candidate causes in the baseline's residuals.
     elapsed : float
         Wall time of the diagnosis [s].
+    structure : tuple[str, ...]
+        Alternative structures of the baseline the data called for
+        (:attr:`~exo_has_sim.diagnosis.plants.Plant.alternatives`), in the baseline.
 
     """
 
@@ -120,11 +125,28 @@ class Diagnosis:
     tests: dict[str, CorrelationTest] = field(default_factory=dict)
     signatures: list[Signature] = field(default_factory=list)
     elapsed: float = 0.0
+    structure: tuple[str, ...] = ()
 
     @property
     def cause(self) -> str:
         """The first named cause, or ``'none'``."""
         return self.causes[0] if self.causes else 'none'
+
+    @property
+    def rivals(self) -> dict[str, list[str]]:
+        """Each choice (a cause or a structure) and what explains the data as well as it."""
+        chosen = {step[0].effect for step in self.steps if step and step[0].significant}
+        out = {}
+        for step in self.steps:
+            others = [e for e in rivals(step) if e not in chosen]
+            if others:
+                out[step[0].effect] = others
+        return out
+
+    @property
+    def indistinguishable(self) -> list[str]:
+        """Effects and structures that explain the data as well as one chosen."""
+        return [e for others in self.rivals.values() for e in others]
 
     @property
     def ranking(self) -> list[Score]:
@@ -169,6 +191,8 @@ class Diagnosis:
             'cause': self.cause,
             'causes': list(self.causes),
             'sizes': self.sizes(),
+            'indistinguishable': self.indistinguishable,
+            'baseline_structure': list(self.structure),
             'parameters': self.parameters(),
             'fit_baseline': fits['baseline']['position'],
             'fit_extended': fits['extended']['position'],
@@ -281,9 +305,16 @@ def diagnose(plant: Plant, horizon: float = DEFAULT_HORIZON, burn_in: float = DE
     steps = forward_selection(plant, baseline, baseline_validation, windows, weights, chosen,
                               max_causes, progress)
     named = [step[0] for step in steps if step[0].significant]
+    alternatives = plant.alternatives
+    structure = tuple(score.effect for score in named if score.effect in alternatives)
+    if named and named[0].effect in alternatives:
+        # A structure the data call for before any effect: the baseline is that structure.
+        baseline, baseline_validation = named[0].fit, named[0].validation
+        say(f'baseline: {named[0].effect}, validated position fit '
+            f'{baseline_validation.fit(0):.2f} %')
     extended = named[-1].fit if named else baseline
     extended_validation = named[-1].validation if named else baseline_validation
-    causes = tuple(score.effect for score in named)
+    causes = tuple(score.effect for score in named if score.effect not in alternatives)
     say(f'cause: {", ".join(causes) or "none"}; validated position fit '
         f'{baseline_validation.fit(0):.2f} % -> {extended_validation.fit(0):.2f} %')
     tests = {}
@@ -297,7 +328,7 @@ def diagnose(plant: Plant, horizon: float = DEFAULT_HORIZON, burn_in: float = DE
     found = _signatures(plant, windows.span, everything)
     return Diagnosis(plant, windows, weights, nominal, baseline, baseline_validation, steps,
                      causes, extended, extended_validation, transfer, transfer_fit, tests,
-                     found, time.perf_counter() - started)
+                     found, time.perf_counter() - started, structure)
 
 
 def _paper_transfer_function(plant: Plant,

@@ -6,7 +6,9 @@ position [m], pressure [Pa] and motor speed [rad/s] count alike); the cost is th
 loss of the residuals (:func:`robust_loss`, soft L1). Parameters are searched in scaled
 coordinates (log of the value over its start for positive ones) by
 ``scipy.optimize.least_squares`` (trust region reflective, bounds), with a forward-difference
-Jacobian whose perturbed candidates are all simulated in one call of the plant.
+Jacobian whose perturbed candidates are all simulated in one call of the plant. A parameter
+with a prior (a nominal value and its stated uncertainty) adds a residual pulling it towards
+its nominal value, weighed as one window of data (maximum a posteriori).
 
 Confidence intervals come from the Gauss-Newton covariance ``sigma^2 (J^T J)^-1`` at the
 optimum (``sigma`` the residuals' robust standard deviation), inflated by ``N / N_eff``: the
@@ -98,7 +100,8 @@ class Fit:
     interval : dict[str, tuple[float, float]]
         95 % confidence interval of each fitted parameter.
     cost : float
-        Mean square weighted residual on the estimation windows.
+        Mean robust loss of the weighted residuals on the estimation windows (priors left
+        out).
     evaluations : int
         Candidates simulated.
     converged : bool
@@ -106,7 +109,7 @@ class Fit:
     at_bound : tuple[str, ...]
         Fitted parameters that ended on a bound.
     residual : FloatArray or None
-        Weighted estimation residuals at the optimum, flat.
+        Weighted estimation residuals at the optimum, flat (priors left out).
     jacobian : FloatArray or None
         Their derivative by the search coordinates of ``free``, shape (residuals, free).
 
@@ -213,6 +216,17 @@ def fit_parameters(plant: Plant, free: Sequence[Parameter], fixed: Mapping[str, 
     cache: dict[bytes, FloatArray] = {}
     jacobians: dict[bytes, FloatArray] = {}
     count = [0]
+    data_size = span.count * span.horizon * len(weights)
+    # A parameter's prior (Parameter.prior) enters as one more residual z / sigma, repeated
+    # once per sample of a window: the residuals of a window are correlated along it, so a
+    # window, not a sample, is an independent unit of evidence, and the prior then weighs as
+    # one window's worth of data does. Repeated rather than scaled so that each copy stays in
+    # the quadratic part of the robust loss.
+    with_prior = [i for i, p in enumerate(free) if p.prior is not None]
+    prior_sigma = np.array([free[i].prior for i in with_prior], dtype=float)
+
+    def prior_residuals(z: FloatArray) -> FloatArray:
+        return np.repeat(z[with_prior] / prior_sigma, span.horizon)
 
     def candidate(z: FloatArray) -> dict[str, float]:
         values = dict(fixed)
@@ -229,6 +243,8 @@ def fit_parameters(plant: Plant, free: Sequence[Parameter], fixed: Mapping[str, 
         for z, evaluation in zip(points, found, strict=True):
             r = evaluation.residuals.ravel()
             r = np.where(np.isfinite(r), r, 1e3)  # a diverged candidate: a large residual
+            if with_prior:
+                r = np.concatenate((r, prior_residuals(z)))
             cache[z.tobytes()] = r
             out.append(r)
         return out
@@ -249,7 +265,7 @@ def fit_parameters(plant: Plant, free: Sequence[Parameter], fixed: Mapping[str, 
         jacobians[z.tobytes()] = np.column_stack(columns)
         return jacobians[z.tobytes()]
 
-    r0 = fun(z0)
+    r0 = fun(z0)[:data_size]
     if not np.all(np.abs(r0) < 1e3):
         msg = f'the starting point of the fit cannot be simulated: {candidate(z0)}'
         raise FitError(msg)
@@ -258,8 +274,8 @@ def fit_parameters(plant: Plant, free: Sequence[Parameter], fixed: Mapping[str, 
                            max_nfev=max_iterations * 2, loss='soft_l1', f_scale=LOSS_SCALE)
     z = np.asarray(result.x, dtype=float)
     values = candidate(z)
-    residual = fun(z)
-    jacobian = jacobians[z.tobytes()] if z.tobytes() in jacobians else jac(z)
+    residual = fun(z)[:data_size]
+    jacobian = (jacobians[z.tobytes()] if z.tobytes() in jacobians else jac(z))[:data_size]
     shape = (span.count, span.horizon, len(weights))
     interval = confidence_intervals(free, z, jacobian, residual, shape)
     width = upper - lower

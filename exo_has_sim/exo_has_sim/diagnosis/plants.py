@@ -38,6 +38,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
+from scipy.linalg import expm
 from scipy.signal import lfilter, savgol_filter
 
 from exo_has_sim import model, simulate
@@ -57,16 +58,33 @@ MAX_DELAY = 0.1
 GRAVITY = 9.81  # m/s^2
 #: Relative tolerance of the HAS windows' integration.
 HAS_RTOL = 1e-3
-#: Absolute tolerances of (x [m], v [m/s], p_A [Pa], n [rad/s], spool [-], void [m^3]), ten
+#: Absolute tolerances of (x [m], v [m/s], p_A [Pa], n [rad/s], spool [-], void [m^3], n_dot
+#: [rad/s^2]), ten
 #: times tighter than :mod:`exo_has_sim.simulate`'s defaults, which suit a plant node but not a
 #: comparison with data at a sensor's resolution: where the motor speed passes zero, the spool
 #: dips towards free mode and ``(1 - s) G_free p`` drains the chamber at a rate that a spool
 #: error of 1e-3 changes by 60 MPa/s; at the default tolerances the simulated pressure there
 #: was off by up to 0.8 MPa and the position by 0.1 mm (against a tight-tolerance run), at
 #: these 60 kPa and 13 um, the level of the sensors' noise, for 1.6 times the steps.
-HAS_ATOL = np.array([1e-7, 1e-5, 1e3, 1e-3, 1e-5, 1e-10])
+HAS_ATOL = np.array([1e-7, 1e-5, 1e3, 1e-3, 1e-5, 1e-10, 10.0])
+#: What a candidate may set of :class:`exo_has_sim.parameters.HasParameters`: the HAS
+#: baseline's re-estimated parameters and the damping ratio of its second-order motor loop.
+NUISANCE = ('bulk_modulus', 'pump_leakage', 'damping', 'motor_time_constant',
+            'pump_displacement', 'dead_volume', 'motor_damping_ratio')
+#: Relative standard uncertainty of a nuisance parameter whose parameter set states none
+#: (None: no prior). The motor's speed loop and the dead volume are assumed values in the
+#: project's sets (their provenance says so); the displacement is stated (paper 2.3.1: 0.4
+#: mL/r), the volumetric efficiency that scales it into the flow gain is not. Bulk modulus,
+#: leakage and damping are what the paper (4.2) calls hard to know: the data decide.
+DEFAULT_UNCERTAINTY: dict[str, float | None] = {
+    'bulk_modulus': None, 'pump_leakage': None, 'damping': None,
+    'motor_time_constant': 0.3, 'pump_displacement': 0.15, 'dead_volume': 0.3}
+#: Damping ratios a second-order motor loop is screened at: under- to overdamped.
+SECOND_ORDER_GRID = (0.4, 0.7, 1.0, 1.5)
+#: Motor speed and spool histories kept (one per delay and time constant a fit tried).
+DRIVE_CACHE = 32
 #: Most joints (candidate x window pairs) integrated in one call, which bounds the memory of
-#: the state history (a call holds horizon x joints x 11 floats).
+#: the state history (a call holds horizon x joints x model.N_STATE floats).
 MAX_JOINTS = 2048
 
 
@@ -96,6 +114,10 @@ class Parameter:
         of the linear search.
     grid : tuple[float, ...]
         Plausible values tried before a fit (an effect's size); empty for none.
+    prior : float or None
+        Standard deviation, in the search coordinate, of a Gaussian prior centred on
+        ``start`` (for a log-scale parameter, 0.2 is about +-20 %): what the parameters
+        file's value is worth. None: no prior, the data alone decide.
 
     """
 
@@ -107,14 +129,16 @@ class Parameter:
     description: str
     scale: float | None = None
     grid: tuple[float, ...] = ()
+    prior: float | None = None
 
     def __post_init__(self) -> None:
         positive = self.scale is not None or self.lower > 0.0
         if not (positive and self.lower <= self.start <= self.upper) \
-                or (self.scale is not None and not self.scale > 0.0):
+                or (self.scale is not None and not self.scale > 0.0) \
+                or (self.prior is not None and not self.prior > 0.0):
             msg = (f'parameter {self.name}: start {self.start!r} must lie within its bounds '
-                   f'[{self.lower!r}, {self.upper!r}] (positive for a log-scale search) and a '
-                   f'linear scale {self.scale!r} must be positive')
+                   f'[{self.lower!r}, {self.upper!r}] (positive for a log-scale search), and a '
+                   f'linear scale {self.scale!r} and a prior {self.prior!r} must be positive')
             raise DiagnosisError(msg)
 
     @property
@@ -180,6 +204,16 @@ class Plant(ABC):
     @abstractmethod
     def baseline(self) -> tuple[Parameter, ...]:
         """Parameters of the baseline that are re-estimated (the hard-to-know ones)."""
+
+    @property
+    def alternatives(self) -> dict[str, tuple[Parameter, ...]]:
+        """Other structures of the baseline, which the data may call for, and what each adds.
+
+        Not causes but the shape of the nominal model (the order of a speed loop): a
+        diagnosis takes one when it predicts the held-out data significantly better, before
+        it looks for effects.
+        """
+        return {}
 
     @property
     @abstractmethod
@@ -265,6 +299,7 @@ class HasPlant(Plant):
     constant load force. Everything else keeps its value from the parameter set.
 
     Outputs are the position and, when measured, the rodless pressure and the motor speed.
+    A measured rod-side pressure is an input: its force A_B p_B joins the load.
     A window's initial motor speed and spool position are not taken from the (noisy) speed
     signal but computed from the commands sent before it, through the model's own speed loop
     and valve (first-order lags), so they carry the candidate's transport delay.
@@ -295,31 +330,81 @@ class HasPlant(Plant):
         self._a = smooth(measurement.position, period, 2)
         self._p = smooth(measurement.optional['pressure_a'], period) \
             if measurement.has('pressure_a') else None
+        # The paper's model has the rod chamber at the tank's (atmospheric) pressure; where the
+        # rod-side pressure is measured, its force A_B p_B acts with the load (an elastic tank
+        # kept above atmospheric, the pressure drop of the return line).
+        self._rod_force = smooth(measurement.optional['pressure_b'], period) \
+            * self.params.area_b if measurement.has('pressure_b') else np.zeros(len(self._x))
         self._load: FloatArray | None = smooth(measurement.optional['load_force'], period) \
-            if measurement.has('load_force') else None
+            + self._rod_force if measurement.has('load_force') else None
         if self._p is not None:
-            guess = float(np.median(self._p)) * self.params.area_a
+            guess = float(np.median(self._p * self.params.area_a - self._rod_force))
         else:
             guess = self.params.moving_mass * GRAVITY
         self._load_guess = max(guess, 1.0)
         self._u = np.ascontiguousarray(measurement.input, dtype=float)
-        self._drive_cache: dict[float, tuple[FloatArray, FloatArray]] = {}
+        self._drive_cache: dict[tuple[int, float, float],
+                                tuple[FloatArray, FloatArray, FloatArray]] = {}
 
     @property
     def baseline(self) -> tuple[Parameter, ...]:
-        """E_y, L_n, B (and a constant load force when none was measured)."""
+        """E_y, L_n, B, motor lag, flow gain, dead volume (and a constant unmeasured load).
+
+        Each but the load carries a prior from the parameter set: centred on its value, as
+        wide as the set's stated uncertainty (:data:`DEFAULT_UNCERTAINTY` where it states
+        none), so that the baseline takes up what is error of the nominal values and leaves
+        the effects what is physics.
+        """
         p = self.params
+
+        def prior(name: str) -> float | None:
+            spread = p.uncertainty.get(name, DEFAULT_UNCERTAINTY.get(name))
+            return None if spread is None else math.log1p(spread)
+
         out = [
             Parameter('bulk_modulus', 'Pa', p.bulk_modulus, 5e7, 3e9,
-                      'effective bulk modulus E_y of oil, hose and seals'),
+                      'effective bulk modulus E_y of oil, hose and seals',
+                      prior=prior('bulk_modulus')),
             Parameter('pump_leakage', 'm^3/(s Pa)', p.pump_leakage, 1e-16, 1e-11,
-                      'pump inner leakage coefficient L_n'),
-            Parameter('damping', 'N s/m', p.damping, 10.0, 1e5, 'viscous damping B'),
+                      'pump inner leakage coefficient L_n', prior=prior('pump_leakage')),
+            Parameter('damping', 'N s/m', p.damping, 10.0, 1e5, 'viscous damping B',
+                      prior=prior('damping')),
+            Parameter('motor_time_constant', 's', p.motor_time_constant,
+                      p.motor_time_constant / 10.0, p.motor_time_constant * 10.0,
+                      'time constant of the motor speed loop',
+                      prior=prior('motor_time_constant')),
+            Parameter('pump_displacement', 'm^3/rad', p.pump_displacement,
+                      p.pump_displacement / 2.0, p.pump_displacement * 2.0,
+                      'effective pump displacement: the flow gain, volumetric efficiency '
+                      'included', prior=prior('pump_displacement')),
+            Parameter('dead_volume', 'm^3', p.dead_volume, p.dead_volume / 5.0,
+                      p.dead_volume * 5.0, 'oil volume of the rodless side at full retraction',
+                      prior=prior('dead_volume')),
         ]
+        if p.motor_damping_ratio > 0.0:  # the parameter set's loop is second order already
+            out.append(self._damping_ratio(p.motor_damping_ratio, prior('motor_damping_ratio')))
         if self._load is None:
             out.append(Parameter('load_force', 'N', self._load_guess, 1.0, 2.0 * p.peak_thrust,
                                  'constant external load force pushing the cylinder in'))
         return tuple(out)
+
+    @property
+    def alternatives(self) -> dict[str, tuple[Parameter, ...]]:
+        """A second-order motor speed loop, when the parameter set's is first order.
+
+        A drive's velocity loop (a PI controller on the motor's inertia) is at least second
+        order; fitted with a first-order lag, its delayed start looks like a transport delay.
+        """
+        if self.params.motor_damping_ratio > 0.0:
+            return {}
+        return {'second_order_motor': (self._damping_ratio(0.7, None, SECOND_ORDER_GRID),)}
+
+    @staticmethod
+    def _damping_ratio(start: float, prior: float | None,
+                       grid: tuple[float, ...] = ()) -> Parameter:
+        return Parameter('motor_damping_ratio', '-', start, 0.1, 5.0,
+                         'damping ratio of the second-order motor speed loop', prior=prior,
+                         grid=grid)
 
     @property
     def effects(self) -> tuple[str, ...]:
@@ -328,9 +413,12 @@ class HasPlant(Plant):
                 'relief_valve', 'entrained_air')
 
     def effect_parameters(self, effect: str) -> tuple[Parameter, ...]:
-        """Size parameters of the HAS effects (see :mod:`exo_has_sim.diagnosis.effects`)."""
+        """Parameters of a HAS effect (:mod:`exo_has_sim.diagnosis.effects`) or structure."""
         from exo_has_sim.diagnosis.effects import has_effect_parameters
 
+        alternatives = self.alternatives
+        if effect in alternatives:
+            return alternatives[effect]
         return has_effect_parameters(effect, self.params)
 
     def candidate_parameters(self, values: Candidate) -> tuple[HasParameters, float]:
@@ -346,34 +434,44 @@ class HasPlant(Plant):
             sizes['relief_crack_pressure'] = float(values['relief_crack_pressure'])
             sizes['relief_crack_conductance'] = float(
                 values.get('relief_crack_conductance', RELIEF_CRACK_CONDUCTANCE))
-        params = replace(p, bulk_modulus=float(values.get('bulk_modulus', p.bulk_modulus)),
-                         pump_leakage=float(values.get('pump_leakage', p.pump_leakage)),
-                         damping=float(values.get('damping', p.damping)),
-                         effects=Effects(**sizes))
+        nuisance = {name: float(values.get(name, getattr(p, name))) for name in NUISANCE}
+        params = replace(p, **nuisance, effects=Effects(**sizes))
         return params, float(values.get('transport_delay', 0.0))
 
-    def drive(self, delay: float) -> tuple[FloatArray, FloatArray]:
-        """Motor speed [rad/s] and spool position [-] at every sample from the commands.
+    def drive(self, delay: float, time_constant: float | None = None,
+              damping_ratio: float | None = None) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Motor speed [rad/s], its rate [rad/s^2] and spool position [-] at every sample.
 
-        The commands, delayed by ``delay`` (to the nearest sample) and held, through the
-        first-order speed loop (exact for held inputs); the spool follows the model's valve
-        law (:func:`exo_has_sim.model.spool_target`, driven by the speed and the measured or
+        The commands, delayed by ``delay`` (to the nearest sample) and held, through the speed
+        loop of ``time_constant`` [s] and ``damping_ratio`` (defaults: the parameter set's;
+        first order for a ratio of 0, else second order as :mod:`exo_has_sim.model` has it;
+        exact for held inputs); the spool follows the model's valve law
+        (:func:`exo_has_sim.model.spool_target`, driven by the speed and the measured or
         load-bearing pressure) through its first-order lag, sample by sample.
         """
-        key = round(delay / self.measurement.period)
+        params = self.params
+        tau = params.motor_time_constant if time_constant is None else time_constant
+        zeta = params.motor_damping_ratio if damping_ratio is None else damping_ratio
+        lag = round(delay / self.measurement.period)
+        key = (lag, tau, zeta)
         if key not in self._drive_cache:
-            params = self.params
+            if len(self._drive_cache) >= DRIVE_CACHE:  # a fit's latest points matter
+                self._drive_cache.pop(next(iter(self._drive_cache)))
             period = self.measurement.period
-            command = np.concatenate((np.full(key, self._u[0]), self._u[:len(self._u) - key]))
+            command = np.concatenate((np.full(lag, self._u[0]), self._u[:len(self._u) - lag]))
             command = np.clip(command, -params.motor_speed_max, params.motor_speed_max)
             # The speed at sample k + 1 results from the command held over sample k.
-            response = _first_order(command, period, params.motor_time_constant)
+            if zeta > 0.0:
+                response, rate = _second_order(command, period, tau, zeta)
+                rate = np.concatenate(([0.0], rate[:-1]))
+            else:
+                response, rate = _first_order(command, period, tau), np.zeros(len(command))
             speed = np.concatenate(([command[0]], response[:-1]))
             if self._p is not None:
                 pressure = self._p
             else:
-                load = self._load if self._load is not None else np.full(len(speed),
-                                                                          self._load_guess)
+                load = self._load if self._load is not None \
+                    else self._load_guess + self._rod_force
                 pressure = load / params.area_a
             prm = model.pack(params)
             gain = 1.0 - math.exp(-period / params.valve_time_constant)
@@ -382,7 +480,7 @@ class HasPlant(Plant):
             for k in range(len(speed)):
                 spool[k] = s
                 s += gain * (model.spool_target(speed[k], pressure[k], s, prm) - s)
-            self._drive_cache[key] = (speed, spool)
+            self._drive_cache[key] = (speed, rate, spool)
         return self._drive_cache[key]
 
     def initial_states(self, params: HasParameters, delay: float, load: FloatArray,
@@ -401,8 +499,10 @@ class HasPlant(Plant):
             if fc:
                 force += fc * np.tanh(v / params.effects.friction_smoothing_velocity)
             y0[:, model.PA] = np.maximum(force / params.area_a, params.cavitation_pressure)
-        speed, spool = self.drive(delay)
+        speed, rate, spool = self.drive(delay, params.motor_time_constant,
+                                        params.motor_damping_ratio)
         y0[:, model.N] = speed[starts]
+        y0[:, model.NDOT] = rate[starts]
         y0[:, model.S] = spool[starts]
         return y0
 
@@ -441,8 +541,8 @@ class HasPlant(Plant):
                 start_load = self._load[starts]
             else:
                 level = float(values.get('load_force', self._load_guess))
-                load = np.full((horizon, windows), level)
-                start_load = np.full(windows, level)
+                load = level + self._rod_force[_delayed_indices(starts, horizon, 0)]
+                start_load = level + self._rod_force[starts]
             loads.append(load)
             states.append(self.initial_states(params, delay, start_load, starts))
         states_out = _integrate(np.repeat(np.stack(packed), windows, axis=0),
@@ -471,6 +571,29 @@ def _integrate(packed: FloatArray, delay: FloatArray, y0: FloatArray, commands: 
     """
     return simulate.integrate_packed(packed, delay, y0, commands, loads, period,
                                      rtol=HAS_RTOL, atol=HAS_ATOL)
+
+
+def _second_order(values: FloatArray, period: float, time_constant: float,
+                  damping_ratio: float) -> tuple[FloatArray, FloatArray]:
+    """Response and rate at the samples of the second-order speed loop to a held input.
+
+    ``n'' = w^2 (u - n) - 2 zeta w n'`` with ``w = 2 zeta / time_constant``
+    (:func:`exo_has_sim.model.rhs`), from rest at the first input, discretised exactly for an
+    input held over each period.
+    """
+    omega = 2.0 * damping_ratio / time_constant
+    a = np.array([[0.0, 1.0], [-omega * omega, -2.0 * damping_ratio * omega]])
+    b = np.array([0.0, omega * omega])
+    augmented = np.zeros((3, 3))
+    augmented[:2, :2], augmented[:2, 2] = a * period, b * period
+    transition = expm(augmented)
+    phi, gamma = transition[:2, :2], transition[:2, 2]
+    state = np.array([values[0], 0.0])
+    out = np.empty((len(values), 2))
+    for k, u in enumerate(values):
+        state = phi @ state + gamma * u
+        out[k] = state
+    return out[:, 0], out[:, 1]
 
 
 def _first_order(values: FloatArray, period: float, time_constant: float) -> FloatArray:

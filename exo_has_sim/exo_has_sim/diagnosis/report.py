@@ -28,6 +28,9 @@ def summary(diagnosis: Diagnosis) -> str:
     """Summarise in a few lines: the cause, its size and interval, the validated fits."""
     fits = diagnosis.fits()
     lines = [f'cause: {", ".join(diagnosis.causes) or "none"}']
+    if diagnosis.structure:
+        lines.append(f'baseline structure: {", ".join(diagnosis.structure)} (the data call '
+                     'for it; not a cause)')
     parameters = diagnosis.parameters()
     for effect, size in diagnosis.sizes().items():
         name = diagnosis.plant.effect_parameters(effect)[0].name
@@ -35,6 +38,9 @@ def summary(diagnosis: Diagnosis) -> str:
         unit = parameters[name]['unit']
         lines.append(f'  {effect}: {size:.4g} {unit} (95 % interval {_number(low)} to '
                      f'{_number(high)})')
+    for choice, others in diagnosis.rivals.items():
+        lines.append(f'  indistinguishable from {choice} in these data: {", ".join(others)} '
+                     f'({_missing(diagnosis)})')
     for output in diagnosis.plant.outputs:
         lines.append(f'validated {output} fit: nominal {fits["nominal"][output]:.2f} %, '
                      f'baseline {fits["baseline"][output]:.2f} %, extended '
@@ -43,6 +49,16 @@ def summary(diagnosis: Diagnosis) -> str:
         lines.append(f"paper's third-order transfer function: position fit "
                      f'{diagnosis.transfer_fit:.2f} %')
     return '\n'.join(lines)
+
+
+def _missing(diagnosis: Diagnosis) -> str:
+    """Say what the record lacks that could tell rival causes apart."""
+    lacking = [name for name in ('pressure_a', 'motor_speed')
+               if name not in diagnosis.plant.outputs]
+    if diagnosis.plant.kind != 'has' or not lacking:
+        return 'they predict the held-out data equally well'
+    return f'they predict the held-out data equally well; a record with {" and ".join(lacking)} ' \
+           'could tell them apart'
 
 
 def _number(value: float | None) -> str:
@@ -93,6 +109,13 @@ def _markdown(diagnosis: Diagnosis, title: str | None) -> str:
     out += ['', '## Verdict', '',
             f'**Cause: {", ".join(effect_title(c) for c in d.causes) or "none"}**'
             + (f' (`{"`, `".join(d.causes)}`)' if d.causes else ''), '']
+    if d.structure:
+        out.append(f'- Baseline structure the data call for (not a cause): '
+                   f'{", ".join(f"`{s}`" for s in d.structure)}.')
+    for choice, others in d.rivals.items():
+        rivals = ', '.join(f'{effect_title(e)} (`{e}`)' for e in others)
+        out.append(f'- Cannot be told apart from {effect_title(choice)} in these data: '
+                   f'{rivals}; {_missing(d)}.')
     if d.causes:
         for effect, size in d.sizes().items():
             name = d.plant.effect_parameters(effect)[0].name

@@ -1,0 +1,173 @@
+"""Benchmark: false alarms and detection limits of ``exo-has diagnose`` on two truth plants.
+
+How often the diagnosis names an effect that is not there, and the smallest size of each
+effect it names in 90 % of draws (its detection limit).
+
+The data come from the two truth plants of the tests, written apart from the project's model
+and from each other (``test/truth_plant.py``: the paper's structure, compact valve, PD
+controller; ``test/second_truth_plant.py``: rod side to a tank through a line, second-order
+motor loop, PI controller, quantised sensors), each drawing its hard-to-know parameters around
+the parameter file's values (+-30 %; the second plant also the motor lag, the flow gain and the
+dead volume), its excitation, load and sensor noise from the seed. Every draw is 30 s at
+200 Hz, written as a CSV log and diagnosed by the command as a user would (``--joint``,
+``--load-mass``), with the joint type's parameter file as the user's belief.
+
+``--null N``: N effect-free draws, the plants taking turns; the false-alarm rate is the share
+that names any cause. ``--limits``: for each effect and each size of :data:`LIMIT_SIZES`,
+``--draws`` draws (the plants taking turns); a size is detected when the effect is named
+(alone or first); the limit is the smallest size from which every larger one is named in at
+least 90 % of its draws. ``--sensors position`` keeps only the command and the position (the
+paper's own logging, section 4.2).
+
+Usage (``./run shell``): ``python bench/detection.py --null 40`` and ``python bench/detection.py
+--limits --draws 10``; ``--jobs`` diagnoses in parallel (default: one per CPU).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing
+import os
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'test'))
+
+import numpy as np
+import second_truth_plant as plant_b
+import truth_plant as plant_a
+from common import describe_machine, write_results
+
+from exo_has_sim.diagnosis.cli import main as diagnose_main
+
+DURATION = 30.0  # s
+LOAD_MASS = 50.0  # kg, both plants' default
+PLANTS = {'a': plant_a, 'b': plant_b}
+FIRST_NULL_SEED = 70000
+FIRST_LIMIT_SEED = 80000
+#: Sizes tried per effect, in its unit (SI), from well below the truth plants' ranges to
+#: their middle.
+LIMIT_SIZES: dict[str, tuple[float, ...]] = {
+    'coulomb_friction': (10.0, 20.0, 40.0, 80.0),
+    'pump_deadzone': (1.0, 2.0, 4.0, 8.0),
+    'transport_delay': (1e-3, 2e-3, 4e-3, 8e-3),
+    'quadratic_leakage': (2.5e-21, 5e-21, 1e-20, 2e-20),
+    'relief_valve': (13e6, 12e6, 11e6, 10e6),
+    'entrained_air': (0.01, 0.02, 0.05, 0.1),
+}
+#: Columns kept with ``--sensors position``.
+POSITION_ONLY = ('time', 'motor_speed_command', 'position', 'reference')
+
+
+def _draw(plant: str, seed: int, effect: str, size: float | None) -> Any:
+    module = PLANTS[plant]
+    return module.draw(seed, effect=effect, size=size, duration=DURATION, load_mass=LOAD_MASS)
+
+
+def diagnose_draw(task: tuple[str, int, str, float | None, str, str]) -> dict[str, Any]:
+    """Draw one data set, write it as CSV, diagnose it; the verdict and the truth."""
+    plant, seed, effect, size, sensors, folder = task
+    draw = _draw(plant, seed, effect, size)
+    columns = plant_a.COLUMNS if sensors == 'full' else POSITION_ONLY
+    path = Path(folder) / f'{plant}_{seed}_{effect}_{size}.csv'
+    table = np.column_stack([draw.columns[name] for name in columns])
+    np.savetxt(path, table, fmt='%.17g', delimiter=',', header=','.join(columns), comments='')
+    out = path.with_suffix('.json')
+    started = time.perf_counter()
+    code = diagnose_main([str(path), '--joint', draw.joint_type, '--load-mass', f'{LOAD_MASS}',
+                          '--json', str(out), '-q'])
+    wall = time.perf_counter() - started
+    doc = json.loads(out.read_text()) if code == 0 else {}
+    return {'plant': plant, 'seed': seed, 'joint': draw.joint_type,
+            'excitation': draw.excitation, 'effect': effect, 'size': draw.size,
+            'sensors': sensors, 'code': code, 'causes': doc.get('causes', []),
+            'sizes': doc.get('sizes', {}), 'indistinguishable': doc.get('indistinguishable', []),
+            'structure': doc.get('baseline_structure', []),
+            'wall_s': round(wall, 1)}
+
+
+def run_tasks(tasks: Sequence[tuple[str, int, str, float | None, str, str]],
+              jobs: int) -> list[dict[str, Any]]:
+    """Diagnose the tasks on ``jobs`` processes, printing a line per result."""
+    results = []
+    with multiprocessing.get_context('fork').Pool(jobs) as pool:
+        for row in pool.imap_unordered(diagnose_draw, tasks):
+            print(json.dumps(row), flush=True)
+            results.append(row)
+    return results
+
+
+def null_ensemble(count: int, sensors: str, jobs: int) -> None:
+    """Measure the false-alarm rate over ``count`` effect-free draws."""
+    with tempfile.TemporaryDirectory() as folder:
+        tasks = [('ab'[i % 2], FIRST_NULL_SEED + i, 'none', None, sensors, folder)
+                 for i in range(count)]
+        results = sorted(run_tasks(tasks, jobs), key=lambda r: r['seed'])
+    alarms = [r for r in results if r['causes']]
+    failed = [r for r in results if r['code'] != 0]
+    lines = [f'bench/detection.py --null {count} --sensors {sensors}: {describe_machine()}',
+             f'false alarms: {len(alarms)} of {len(results)} effect-free draws '
+             f'({100.0 * len(alarms) / len(results):.1f} %); diagnoses that failed: '
+             f'{len(failed)}; wall per diagnosis median '
+             f'{float(np.median([r["wall_s"] for r in results])):.1f} s']
+    for plant in PLANTS:
+        mine = [r for r in results if r['plant'] == plant]
+        lines.append(f'  plant {plant}: {sum(bool(r["causes"]) for r in mine)} of {len(mine)}; '
+                     f'a second-order motor loop taken in '
+                     f'{sum("second_order_motor" in r["structure"] for r in mine)}')
+    lines += [f'  seed {r["seed"]} plant {r["plant"]} {r["joint"]} {r["excitation"]}: named '
+              f'{", ".join(r["causes"])} {r["sizes"]}' for r in alarms]
+    write_results(f'detection_null_{sensors}', {'draws': results}, lines)
+
+
+def detection_limits(draws: int, sensors: str, jobs: int) -> None:
+    """Measure the share of draws naming each effect at each size, and the limit (90 %)."""
+    with tempfile.TemporaryDirectory() as folder:
+        tasks = [('ab'[k % 2], FIRST_LIMIT_SEED + 1000 * e + k, effect, size, sensors, folder)
+                 for e, (effect, sizes) in enumerate(LIMIT_SIZES.items())
+                 for size in sizes for k in range(draws)]
+        results = run_tasks(tasks, jobs)
+    lines = [f'bench/detection.py --limits --draws {draws} --sensors {sensors}: '
+             f'{describe_machine()}', 'effect: named share per size; limit (90 %)']
+    table = {}
+    for effect, sizes in LIMIT_SIZES.items():
+        shares = []
+        for size in sizes:
+            mine = [r for r in results if r['effect'] == effect and r['size'] == size]
+            named = sum(bool(r['causes']) and r['causes'][0] == effect for r in mine)
+            shares.append(named / max(len(mine), 1))
+        limit = None
+        for i in range(len(sizes)):
+            if all(share >= 0.9 for share in shares[i:]):
+                limit = sizes[i]
+                break
+        table[effect] = {'sizes': list(sizes), 'named_share': shares, 'limit': limit}
+        lines.append(f'{effect}: ' + ', '.join(f'{size:g}: {share:.0%}' for size, share
+                                               in zip(sizes, shares, strict=True))
+                     + f'; limit {"above the sizes tried" if limit is None else f"{limit:g}"}')
+    write_results(f'detection_limits_{sensors}', {'table': table, 'draws': results}, lines)
+
+
+def main() -> None:
+    """Parse the arguments and run the ensemble or the limits."""
+    parser = argparse.ArgumentParser(description=(__doc__ or '').splitlines()[0])
+    mode = parser.add_mutually_exclusive_group(required=True)
+    mode.add_argument('--null', type=int, metavar='N', help='effect-free draws')
+    mode.add_argument('--limits', action='store_true', help='detection limit of each effect')
+    parser.add_argument('--draws', type=int, default=10, help='draws per effect and size')
+    parser.add_argument('--sensors', choices=('full', 'position'), default='full')
+    parser.add_argument('--jobs', type=int, default=os.cpu_count() or 1)
+    args = parser.parse_args()
+    if args.null is not None:
+        null_ensemble(args.null, args.sensors, args.jobs)
+    else:
+        detection_limits(args.draws, args.sensors, args.jobs)
+
+
+if __name__ == '__main__':
+    main()
