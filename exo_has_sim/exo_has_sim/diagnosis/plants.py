@@ -34,6 +34,7 @@ import math
 from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -434,7 +435,8 @@ class HasPlant(Plant):
             sizes['relief_crack_pressure'] = float(values['relief_crack_pressure'])
             sizes['relief_crack_conductance'] = float(
                 values.get('relief_crack_conductance', RELIEF_CRACK_CONDUCTANCE))
-        nuisance = {name: float(values.get(name, getattr(p, name))) for name in NUISANCE}
+        nuisance: dict[str, Any] = {name: float(values.get(name, getattr(p, name)))
+                                    for name in NUISANCE}
         params = replace(p, **nuisance, effects=Effects(**sizes))
         return params, float(values.get('transport_delay', 0.0))
 
