@@ -67,8 +67,10 @@ def test_a_nan_command_is_refused_by_the_plant_which_keeps_publishing():
         plant.wait_for_output('plant ready', timeout_s=120)
         command = ('/left_knee/has_command=exo_has_msgs/msg/HasCommand='
                    '{"joint": "left_knee", "motor_speed": NaN, "enable": true}')
+        # Publishing outlasts discovery (up to about 3 s on a loaded machine here): a clean
+        # CI run saw every NaN of a 3 s burst sent before the plant had matched.
         with NodeProcess(PEERS, ['publish', command, '--qos', 'best_effort,volatile,10',
-                                 '--no-wait', '--period', '0.05', '--duration', '3']) as talker:
+                                 '--no-wait', '--period', '0.05', '--duration', '15']) as talker:
             talker.wait_for_output('PUBLISHED', timeout_s=10)
             plant.wait_for_output(r'ERROR.*non-finite|ERROR.*NaN|ERROR.*nan', timeout_s=10)
         with NodeProcess(PEERS, ['record', '/left_knee/has_state=exo_has_msgs/msg/HasState',
