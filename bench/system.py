@@ -18,8 +18,11 @@ EventsExecutor (what exo_has ships) and on its SingleThreadedExecutor (``EXO_HAS
 with ``--realtime-priorities 0 10``, with the plants' loops under the default scheduler and under
 SCHED_FIFO at priority 10 (root only; see exo_has_runtime.realtime).
 
+With ``--variants defaults watchdog.batch=false,recorder.poll_period=0``, with the nodes'
+parameters as shipped and with those set (``node.parameter=value``, comma-separated).
+
 Run (in ``./run shell``): ``python bench/system.py [--duration 30] [--rates 200 1000]
-[--repeats 3] [--executors events single] [--realtime-priorities 0 10]``.
+[--repeats 3] [--executors events single] [--realtime-priorities 0 10] [--variants ...]``.
 """
 
 from __future__ import annotations
@@ -126,16 +129,40 @@ COMPOSITIONS: dict[str, dict[str, tuple[str, ...]]] = {
 }
 
 
+#: The variant that keeps every node's parameters as shipped.
+DEFAULTS = 'defaults'
+
+
+def node_arguments(variant: str) -> dict[str, tuple[str, ...]]:
+    """ROS arguments per node of a variant: ``watchdog.batch=false,recorder.poll_period=0``.
+
+    Raises
+    ------
+    ValueError
+        If a setting is not ``node.parameter=value``.
+
+    """
+    arguments: dict[str, tuple[str, ...]] = {}
+    for setting in filter(None, variant.split(',')) if variant != DEFAULTS else ():
+        node, dot, rest = setting.partition('.')
+        name, equals, value = rest.partition('=')
+        if not (dot and equals and node and name):
+            msg = f'variant setting {setting!r}: expected node.parameter=value'
+            raise ValueError(msg)
+        arguments[node] = (*arguments.get(node, ()), '-p', f'{name}:={value}')
+    return arguments
+
+
 def run(rate: float, duration: float, folder: Path, priority: int = 0,
         executor: str = 'events', composition: str = 'plants',
-        recorder_poll: float | None = None) -> dict[str, object]:
+        variant: str = DEFAULTS) -> dict[str, object]:
     """One session at a rate, on an executor, the plants at a real-time priority; its figures.
 
-    ``recorder_poll``: the recorder's ``poll_period`` [s] (None: its default).
+    ``variant``: node parameters set for this session (:func:`node_arguments`).
     """
-    recorder = () if recorder_poll is None else ('-p', f'poll_period:={recorder_poll}')
     config = SessionConfig(('walk',), (duration,), rate, realtime_priority=priority,
-                           composition=COMPOSITIONS[composition], recorder_arguments=recorder)
+                           composition=COMPOSITIONS[composition],
+                           node_arguments=node_arguments(variant))
     env = {'EXO_HAS_EXECUTOR': executor}
     session = Session(config, folder, env=env)
     session.start(show=lambda line: None)
@@ -160,7 +187,7 @@ def run(rate: float, duration: float, folder: Path, priority: int = 0,
     return {
         'fatal_events': fatal,
         'rate_hz': rate, 'duration_s': duration, 'realtime_priority': priority,
-        'executor': executor, 'composition': composition, 'recorder_poll_s': recorder_poll,
+        'executor': executor, 'composition': composition, 'variant': variant,
         'cpu_percent_of_one_core': {k: round(v, 1) for k, v in shares.items()},
         'cpu_percent_total': round(sum(shares.values()), 1),
         'plant_periods': periods, 'plant_missed_periods': missed,
@@ -191,55 +218,59 @@ def main() -> None:
     parser.add_argument('--compositions', nargs='+', default=['plants'],
                         choices=tuple(COMPOSITIONS),
                         help='nodes sharing a process (separate: none), taking turns')
-    parser.add_argument('--recorder-poll-periods', type=float, nargs='+', default=[0.02],
-                        help="the recorder's poll_period to compare [s], taking turns (0: a "
-                             'callback per message)')
+    parser.add_argument('--results', default='system',
+                        help='name of the results files under bench/results/')
+    parser.add_argument('--variants', nargs='+', default=[DEFAULTS],
+                        help='node parameters to compare, taking turns: defaults, or '
+                             'node.parameter=value[,node.parameter=value...]')
     args = parser.parse_args()
-    variants = list(itertools.product(args.executors, args.compositions,
-                                      args.recorder_poll_periods))
+    for variant in args.variants:
+        node_arguments(variant)  # a malformed variant fails before any session runs
+    variants = list(itertools.product(args.executors, args.compositions, args.variants))
     results = []
     with tempfile.TemporaryDirectory() as scratch:
         for repeat in range(args.repeats):
             for rate in args.rates:
                 for priority in args.realtime_priorities:
-                    for executor, composition, poll in variants:
-                        folder = Path(scratch) / (f'rate_{rate:g}_{priority}_{executor}_'
-                                                  f'{composition}_{poll:g}_{repeat}')
+                    for index, (executor, composition, variant) in enumerate(variants):
+                        folder = Path(scratch) / (f'rate_{rate:g}_{priority}_{index}_{repeat}')
                         results.append(run(rate, args.duration, folder, priority, executor,
-                                           composition, poll))
+                                           composition, variant))
                         print(json.dumps(results[-1], indent=1), flush=True)
     medians = {}
-    for rate, priority, (executor, composition, poll) in itertools.product(
+    for rate, priority, (executor, composition, variant) in itertools.product(
             args.rates, args.realtime_priorities, variants):
         runs = [r for r in results if r['rate_hz'] == rate
                 and r['realtime_priority'] == priority and r['executor'] == executor
-                and r['composition'] == composition and r['recorder_poll_s'] == poll]
-        key = (f'{rate:g} Hz, {executor} executor, {composition} composed, recorder poll '
-               f'{poll:g} s, realtime priority {priority}')
+                and r['composition'] == composition and r['variant'] == variant]
+        key = (f'{rate:g} Hz, {executor} executor, {composition} composed, {variant}, '
+               f'realtime priority {priority}')
         medians[key] = {
             name: float(np.median([r[name] for r in runs]))
             for name in ('cpu_percent_total', 'missed_percent', 'late_percent')}
-        medians[key]['recorder_cpu_percent'] = float(
-            np.median([r['cpu_percent_of_one_core'].get('recorder', 0.0) for r in runs]))
+        medians[key]['cpu_percent_per_node'] = {
+            node: round(float(np.median([r['cpu_percent_of_one_core'].get(node, 0.0)
+                                         for r in runs])), 1)
+            for node in runs[0]['cpu_percent_of_one_core']}
         medians[key]['probe_missed_percent'] = float(
             np.median([r['probe']['missed_percent'] for r in runs]))
     machine = describe_machine()
     lines = [f'bench/system.py --duration {args.duration:g} --repeats {args.repeats} '
              f'--executors {" ".join(args.executors)} '
              f'--compositions {" ".join(args.compositions)} '
-             f'--recorder-poll-periods {" ".join(f"{p:g}" for p in args.recorder_poll_periods)} '
+             f'--variants {" ".join(args.variants)} '
              f'--realtime-priorities {" ".join(map(str, args.realtime_priorities))}: {machine}']
     for key, median in medians.items():
         lines.append(f'{key}, median of {args.repeats}: total CPU '
-                     f"{median['cpu_percent_total']:.1f} % of one core (recorder "
-                     f"{median['recorder_cpu_percent']:.1f} %), missed "
+                     f"{median['cpu_percent_total']:.1f} % of one core (per node "
+                     f"{median['cpu_percent_per_node']}), missed "
                      f"{median['missed_percent']:.3f} %, late {median['late_percent']:.3f} %, "
                      f"idle probe missed {median['probe_missed_percent']:.3f} %")
     for r in results:
         ref, cmd = r['latency_ms']['reference_to_state'], r['latency_ms']['command_to_state']
         lines.append(
             f"{r['rate_hz']:g} Hz, {r['executor']} executor, {r['composition']} composed, "
-            f"recorder poll {r['recorder_poll_s']:g} s, realtime priority "
+            f"{r['variant']}, realtime priority "
             f"{r['realtime_priority']}: total CPU "
             f"{r['cpu_percent_total']} % of one core; plants "
             f"missed {r['plant_missed_periods']}/{r['plant_periods']} ({r['missed_percent']} %), "
@@ -250,7 +281,7 @@ def main() -> None:
             f"{ref['p99']} ms, command-to-state p50 {cmd['p50']} ms p99 {cmd['p99']} ms, "
             f"{r['latency_ms']['superseded_commands']} commands superseded; fatal events "
             f"{r['fatal_events']}; per node {r['cpu_percent_of_one_core']}")
-    write_results('system', {'medians': medians, 'runs': results}, lines)
+    write_results(args.results, {'medians': medians, 'runs': results}, lines)
 
 
 if __name__ == '__main__':

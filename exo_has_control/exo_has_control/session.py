@@ -68,6 +68,9 @@ COMPOSITION: dict[str, tuple[str, ...]] = {
 #: What moves the joints: plant nodes, or simulated CAN devices behind the hardware driver.
 HARDWARE = ('plants', 'can')
 
+#: Nodes that ``SessionConfig.node_arguments`` may give extra ROS arguments to.
+CONFIGURABLE_NODES = ('recorder', 'pd_controller', 'watchdog', 'gait_publisher')
+
 
 
 
@@ -151,8 +154,9 @@ class SessionConfig:
         Whether to record the load topics too (when a test publishes loads).
     plant_arguments : dict
         Extra ROS arguments per joint's plant (e.g. ``-p load_force:=...``).
-    recorder_arguments : tuple
-        Extra ROS arguments of the recorder (e.g. ``-p poll_period:=0.0``).
+    node_arguments : dict
+        Extra ROS arguments per node other than the plants, by node name (e.g. ``{'recorder':
+        ('-p', 'poll_period:=0.0')}``).
     start_delay : float
         Time from the moment the gait publisher's readers (controller, watchdog, recorder)
         have matched to its first reference [s]: the nodes settle at standing first.
@@ -190,7 +194,7 @@ class SessionConfig:
     record: bool = True
     loads: bool = False
     plant_arguments: dict[str, tuple[str, ...]] = field(default_factory=dict)
-    recorder_arguments: tuple[str, ...] = ()
+    node_arguments: dict[str, tuple[str, ...]] = field(default_factory=dict)
     start_delay: float = 2.0
     stale_periods: int = 100
     load_mass: dict[str, float] = field(default_factory=lambda: {'hip': 50.0, 'knee': 25.0})
@@ -202,6 +206,11 @@ class SessionConfig:
     def __post_init__(self) -> None:
         if self.hardware not in HARDWARE:
             msg = f'unknown hardware {self.hardware!r}: expected one of {", ".join(HARDWARE)}'
+            raise ValueError(msg)
+        unknown = sorted(set(self.node_arguments) - set(CONFIGURABLE_NODES))
+        if unknown:
+            msg = (f'node_arguments for unknown node {", ".join(unknown)}: expected among '
+                   f'{", ".join(CONFIGURABLE_NODES)} (plants: plant_arguments)')
             raise ValueError(msg)
 
     @property
@@ -217,7 +226,7 @@ def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
         topics = ','.join(f"'{t}'" for t in recorded_topics(config.loads))
         specs.append(NodeSpec('recorder', 'exo_has_runtime.recorder', (
             '--ros-args', '-p', f'output:={bag}', '-p', f'topics:=[{topics}]',
-            *config.recorder_arguments),
+            *config.node_arguments.get('recorder', ())),
             ready=r'recording', stage=0, node_class='exo_has_runtime.recorder:Recorder'))
     if config.hardware == 'can':
         channel = config.can_channel or random_multicast_group()
@@ -239,12 +248,15 @@ def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
                 '-p', f'realtime_priority:={config.realtime_priority}',
                 *config.plant_arguments.get(joint, ())),
                 ready=rf'{joint} plant ready', node_class='exo_has_sim.plant_node:PlantNode'))
-    specs.append(NodeSpec('pd_controller', 'exo_has_control.pd_controller', (),
+    controller = config.node_arguments.get('pd_controller', ())
+    specs.append(NodeSpec('pd_controller', 'exo_has_control.pd_controller',
+                          ('--ros-args', *controller) if controller else (),
                           ready=r'controller ready',
                           node_class='exo_has_control.pd_controller:PdController'))
     specs.append(NodeSpec('watchdog', 'exo_has_driver.watchdog', (
         '--ros-args', '-p', f'rate:={config.rate}', '-p', f'control_rate:={config.rate}',
-        '-p', f'stale_periods:={config.stale_periods}'), stage=3,
+        '-p', f'stale_periods:={config.stale_periods}',
+        *config.node_arguments.get('watchdog', ())), stage=3,
         node_class='exo_has_driver.watchdog:Watchdog'))
     # The controller, the watchdog and the recorder take the references.
     reference_readers = 2 + int(config.record and bag is not None)
@@ -253,7 +265,8 @@ def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
     specs.append(NodeSpec('gait_publisher', 'exo_has_control.gait_publisher', (
         '--ros-args', '-p', f'motions:=[{motions}]', '-p', f'durations:=[{durations}]',
         '-p', f'rate:={config.rate}', '-p', f'start_delay:={config.start_delay}',
-        '-p', f'wait_for_subscribers:={reference_readers}'),
+        '-p', f'wait_for_subscribers:={reference_readers}',
+        *config.node_arguments.get('gait_publisher', ())),
         ready=r'gait publisher ready', stage=4,
         node_class='exo_has_control.gait_publisher:GaitPublisher'))
     composition = config.composition

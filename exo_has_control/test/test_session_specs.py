@@ -69,3 +69,17 @@ def test_the_simulated_can_devices_cannot_be_composed():
     specs = node_specs(SessionConfig(hardware='can'), None)
     with pytest.raises(ValueError, match='can_devices: it is not a node class'):
         compose(specs, 'x', ('can_devices', 'driver'))
+
+
+def test_extra_arguments_reach_the_node_they_name_and_no_other():
+    config = SessionConfig(composition={}, node_arguments={
+        'watchdog': ('-p', 'batch:=false'), 'pd_controller': ('-p', 'hip.kp:=30.0')})
+    arguments = {spec.name: spec.arguments for spec in node_specs(config, Path('bag'))}
+    assert arguments['watchdog'][-2:] == ('-p', 'batch:=false')
+    assert arguments['pd_controller'] == ('--ros-args', '-p', 'hip.kp:=30.0')
+    assert not any('batch:=false' in a for name, a in arguments.items() if name != 'watchdog')
+
+
+def test_extra_arguments_for_an_unknown_node_are_refused_by_name():
+    with pytest.raises(ValueError, match='unknown node left_hip_plant: expected among'):
+        SessionConfig(node_arguments={'left_hip_plant': ('-p', 'rate:=100.0')})

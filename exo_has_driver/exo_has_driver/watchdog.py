@@ -2,11 +2,13 @@
 
 Feeds each joint's HasState and HasCommand and the joint references, with their receive time on
 the node clock, to :class:`exo_has_driver.safety.Watchdog`, and checks staleness at ``rate``.
-Each message is taken as it arrives (the events executor of :mod:`exo_has_runtime.execution`
-runs one callback per message), so a check judges every message that arrived before it: after
-a hold-up of the executor, rclpy 7.1.6 runs the queued messages' callbacks first, then one
-check. The subscriptions keep a second of each topic (``DEEP_SENSOR_QOS``), so a watchdog held
-up still sees each sample once it runs again.
+By default (``batch`` true) the messages are taken at each check, in order of reception, from
+subscriptions no executor wakes for (:class:`exo_has_runtime.polling.Inbox`), each with the time
+DDS received it: 200 wake-ups a second instead of some 1800, at the cost of judging a message
+up to one check period (5 ms at 200 Hz) after it arrived (bench/README.md). With ``batch``
+false each message has its callback, and a check judges every message taken before it. The
+subscriptions keep a second of each topic (``DEEP_SENSOR_QOS``), so a watchdog held up still
+sees each sample once it runs again.
 Its events go out on ``safety_events`` (reliable, transient local, so that a node started later
 learns of a latched stop), a summary per joint on ``/diagnostics`` at 1 Hz, and, while a stop
 is latched, stop commands (motor speed 0, drive disabled) on every joint's ``has_command`` at
@@ -19,6 +21,8 @@ is latched, stop commands (motor speed 0, drive disabled) on every joint's ``has
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable
 from functools import partial
 from typing import Any
 
@@ -38,6 +42,7 @@ from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
 from exo_has_runtime.execution import run_node
 from exo_has_runtime.graph import PublisherWatch
 from exo_has_runtime.joints import JOINT_NAMES, joint_type_of
+from exo_has_runtime.polling import Inbox
 from exo_has_runtime.profiles import DEEP_SENSOR_QOS, SAFETY_EVENT_QOS
 from exo_has_runtime.topics import (
     DIAGNOSTICS_TOPIC,
@@ -103,6 +108,10 @@ class Watchdog(Node):
             description='period of the search of the ROS graph for a second publisher of a '
                         "joint's state or command [s]", read_only=True,
             floating_point_range=_floats(0.05, 10.0))).value
+        batch = declare('batch', True, ParameterDescriptor(
+            description='take states, commands and references at each check, in order of '
+                        'reception (true), or by a callback per message (false: a wake-up '
+                        'each)', read_only=True)).value
         sources = {kind: declare(f'params_{kind}', kind, ParameterDescriptor(
             description=f'{kind} HAS parameter set: hip, knee or a parameters YAML file',
             read_only=True)).value for kind in ('hip', 'knee')}
@@ -133,13 +142,14 @@ class Watchdog(Node):
             joint: self.create_publisher(HasCommand, has_command_topic(joint),
                                          qos_profile_sensor_data)
             for joint in self._joints}
+        # Messages are judged by a handler taking (message, now, receive time [s], core).
+        self._handlers: dict[str, Callable[[Any, Time, float, safety.Watchdog], None]] = {}
+        self._inbox = Inbox(self) if batch else None
         for joint in self._joints:
-            self.create_subscription(HasState, has_state_topic(joint),
-                                     partial(self._on_state, joint), DEEP_SENSOR_QOS)
-            self.create_subscription(HasCommand, has_command_topic(joint),
-                                     partial(self._on_command, joint), DEEP_SENSOR_QOS)
-        self.create_subscription(JointState, JOINT_REFERENCE_TOPIC, self._on_reference,
-                                 DEEP_SENSOR_QOS)
+            self._watch(HasState, has_state_topic(joint), partial(self._take_state, joint))
+            self._watch(HasCommand, has_command_topic(joint),
+                        partial(self._take_command, joint))
+        self._watch(JointState, JOINT_REFERENCE_TOPIC, self._take_reference)
         self.create_subscription(Empty, SAFETY_RESET_TOPIC, self._on_reset, 10)
         self.create_timer(self._period, self._on_tick)
         self.create_timer(1.0, self._on_diagnostics)
@@ -151,6 +161,7 @@ class Watchdog(Node):
         first = next(iter(self._limits.values()))
         self.get_logger().info(
             f'watchdog ready: {", ".join(self._joints)}; checks and stops at {rate:g} Hz, '
+            f'messages taken {"at each check" if batch else "as they arrive"}, '
             f'stale after {self._shortest_timeout * 1e3:.0f} ms ({stale_periods} periods at '
             f'{control_rate:g} Hz), start-up grace {grace:g} s, relief '
             f'{first.relief_pressure * 1e-6:g} MPa, warning '
@@ -167,34 +178,57 @@ class Watchdog(Node):
             self._core = safety.Watchdog(self._limits, t)
         return now, t, self._core
 
-    def _on_state(self, joint: str, state: HasState) -> None:
+    def _watch(self, message_type: type, topic: str,
+               handler: Callable[[Any, Time, float, safety.Watchdog], None]) -> None:
+        """Subscribe to a topic whose every message the watchdog judges."""
+        if self._inbox is not None:
+            self._inbox.subscribe(topic, message_type, topic, DEEP_SENSOR_QOS)
+            self._handlers[topic] = handler
+        else:
+            self.create_subscription(message_type, topic, partial(self._on_message, handler),
+                                     DEEP_SENSOR_QOS)
+
+    def _on_message(self, handler: Callable[[Any, Time, float, safety.Watchdog], None],
+                    message: Any) -> None:
         reading = self._reading()
         if reading is not None:
             now, t, core = reading
-            self._emit(now, core.on_state(joint, t, state.position, state.pressure_a,
-                                          state.pressure_b, state.valve_mode))
+            handler(message, now, t, core)
 
-    def _on_command(self, joint: str, command: HasCommand) -> None:
-        reading = self._reading()
-        if reading is None:
+    def _take_batch(self, now: Time, t: float, core: safety.Watchdog) -> None:
+        """Judge every message queued since the last check, at its time of reception."""
+        if self._inbox is None:
             return
-        now, t, core = reading
+        taken = self._inbox.drain()
+        if not taken:
+            return
+        # DDS stamps receptions on the system clock; the node clock may be simulated, so a
+        # message is dated by its age, not by the stamp itself.
+        system_now_ns = time.time_ns()
+        for message in taken:
+            age = max(0, system_now_ns - message.received_ns) * 1e-9
+            self._handlers[message.topic](message.data, now, t - age, core)
+
+    def _take_state(self, joint: str, state: HasState, now: Time, t: float,
+                    core: safety.Watchdog) -> None:
+        self._emit(now, core.on_state(joint, t, state.position, state.pressure_a,
+                                      state.pressure_b, state.valve_mode))
+
+    def _take_command(self, joint: str, command: HasCommand, now: Time, t: float,
+                      core: safety.Watchdog) -> None:
         stamp_ns = command.header.stamp.sec * 1_000_000_000 + command.header.stamp.nanosec
         if not command.enable and command.motor_speed == 0.0 \
                 and stamp_ns <= self._released_ns:
             return  # one of our own stop commands, still in flight when the stop was released
         self._emit(now, core.on_command(joint, t, command.motor_speed, command.enable))
 
-    def _on_reference(self, reference: JointState) -> None:
-        reading = self._reading()
-        if reading is None:
-            return
+    def _take_reference(self, reference: JointState, now: Time, t: float,
+                        core: safety.Watchdog) -> None:
         if len(reference.position) != len(reference.name):
             self.get_logger().warning(
                 f'ignored a joint reference with {len(reference.name)} names and '
                 f'{len(reference.position)} positions', throttle_duration_sec=1.0)
             return
-        now, t, core = reading
         angles = dict(zip(reference.name, reference.position, strict=True))
         self._emit(now, core.on_reference(t, angles))
 
@@ -203,6 +237,7 @@ class Watchdog(Node):
         if reading is None:
             return
         now, t, core = reading
+        self._take_batch(now, t, core)  # judge the reset on every state received before it
         was_stopped = core.stopped
         events = core.reset(t)
         if was_stopped and not core.stopped:
@@ -214,6 +249,7 @@ class Watchdog(Node):
         if reading is None:
             return
         now, t, core = reading
+        self._take_batch(now, t, core)
         held_up = (self._last_check is not None
                    and t - self._last_check > self._period + self._shortest_timeout)
         self._last_check = t
@@ -278,6 +314,13 @@ class Watchdog(Node):
             command = HasCommand(joint=joint, motor_speed=0.0, enable=False)
             command.header.stamp = now.to_msg()
             publisher.publish(command)
+
+    def destroy_node(self) -> None:
+        """Leave the graph with the inbox node that holds the subscriptions."""
+        inbox, self._inbox = getattr(self, '_inbox', None), None
+        if inbox is not None:
+            inbox.destroy()
+        super().destroy_node()
 
 
 def main(args: list[str] | None = None) -> None:

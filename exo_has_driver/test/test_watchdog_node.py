@@ -155,8 +155,9 @@ def start_rig(make_rig, watchdog, joints=JOINT_NAMES):
     return rig
 
 
-def test_a_fatal_fault_stops_every_joint_and_a_reset_on_the_topic_releases_it(make_rig):
-    with NodeProcess(WATCHDOG, ARGS) as watchdog:
+@pytest.mark.parametrize('batch', [True, False], ids=['taken_at_each_check', 'by_callback'])
+def test_a_fatal_fault_stops_every_joint_and_a_reset_on_the_topic_releases_it(make_rig, batch):
+    with NodeProcess(WATCHDOG, [*ARGS, '-p', f'batch:={str(batch).lower()}']) as watchdog:
         rig = start_rig(make_rig, watchdog)
         rig.run(0.5)
         assert rig.events == [], [e.text for _, e in rig.events]
@@ -194,7 +195,8 @@ def test_a_fatal_fault_stops_every_joint_and_a_reset_on_the_topic_releases_it(ma
         latency = max(stops.values()) - t0
         assert (event.joint, event.severity, event.value, event.limit, event.latched) == (
             'left_knee', SafetyEvent.SEVERITY_FATAL, 18.0e6, 18.0e6, True)
-        # Sent in the callback that raised the event, not at the next check: the same stamp.
+        # Sent where the event was raised (the check that took the state, or its callback),
+        # not at a later check: the same stamp.
         assert {j: min(s for t, s in stamps if t >= t0)
                 for j, stamps in rig.stop_stamps.items()} == dict.fromkeys(JOINT_NAMES,
                                                                            stamp_ns(event))
