@@ -24,7 +24,9 @@ CPU: the plant's while the client runs (its start-up excluded), the client's who
 Runs alternate the executors, so both see the same machine load.
 
 Usage: ``.venv/bin/python bench/roundtrip.py [--duration S] [--repeats N]
-[--executors events,single] [--rates 200,1000] [--out FILE]`` (with the workspace sourced).
+[--executors events,single] [--rates 200,1000] [--links loopback,veth] [--out FILE]`` (with the
+workspace sourced). ``--links veth`` puts the plant on a robot host and the client on an
+operator host, two network namespaces joined by a veth pair (root only).
 """
 
 from __future__ import annotations
@@ -39,10 +41,12 @@ import sys
 import tempfile
 import threading
 import time
+from contextlib import ExitStack
 from pathlib import Path
 
 from common import cpu_seconds, describe_machine
 
+from exo_has_runtime.testing.hosts import OPERATOR, ROBOT, VirtualHosts, discovery_environment
 from exo_has_runtime.testing.processes import NodeProcess
 
 JOINT = 'left_hip'
@@ -139,18 +143,40 @@ def percentile_ms(values: list[int], q: float) -> float:
     return ordered[min(len(ordered) - 1, int(q * len(ordered)))] / 1e6
 
 
-def run_pair(executor_kind: str, rate_hz: float, duration_s: float) -> dict[str, float]:
-    """Run one plant process and one client process; return the run's summary."""
+def run_pair(executor_kind: str, rate_hz: float, duration_s: float,
+             link: str = 'loopback') -> dict[str, float]:
+    """Run one plant process and one client process; return the run's summary.
+
+    ``link``: ``loopback`` (both on this host) or ``veth`` (the plant on a robot host, the
+    client on an operator host, two network namespaces joined by a veth pair; root only).
+    """
+    with ExitStack() as stack:
+        plant_env: dict[str, str] = {'EXO_HAS_EXECUTOR': executor_kind}
+        client_env, prefix, netns = dict(plant_env), [], None
+        if link == 'veth':
+            hosts = stack.enter_context(VirtualHosts())
+            netns = hosts.hosts[ROBOT].netns
+            plant_env |= discovery_environment(ROBOT)
+            client_env |= discovery_environment(OPERATOR)
+            prefix = ['nsenter', f'--net={hosts.hosts[OPERATOR].netns}']
+        return _run_pair(executor_kind, rate_hz, duration_s, plant_env, client_env, prefix,
+                         netns)
+    raise AssertionError  # pragma: no cover - ExitStack does not swallow exceptions
+
+
+def _run_pair(executor_kind: str, rate_hz: float, duration_s: float, plant_env: dict[str, str],
+              client_env: dict[str, str], prefix: list[str],
+              netns: str | None) -> dict[str, float]:
     here = Path(__file__).resolve()
     with NodeProcess('exo_has_sim.plant_node', ['--ros-args', '-p', f'joint:={JOINT}', '-p',
                                                 f'rate:={rate_hz}'],
-                     env={'EXO_HAS_EXECUTOR': executor_kind}) as plant:
+                     env=plant_env, netns=netns) as plant:
         plant.wait_for_output('plant ready', timeout_s=120)
         plant_cpu_before = cpu_seconds(plant.process.pid)
         client_run = subprocess.run(
-            [sys.executable, str(here), '_client', str(rate_hz), str(duration_s),
+            [*prefix, sys.executable, str(here), '_client', str(rate_hz), str(duration_s),
              executor_kind], cwd=tempfile.gettempdir(),
-            env={**os.environ, 'EXO_HAS_EXECUTOR': executor_kind}, capture_output=True,
+            env={**os.environ, **client_env}, capture_output=True,
             text=True, timeout=duration_s + 90)
         plant_cpu_s = cpu_seconds(plant.process.pid) - plant_cpu_before
         if client_run.returncode != 0:
@@ -183,8 +209,14 @@ def main() -> int:
     parser.add_argument('--executors', default='events,single',
                         help='executors compared, comma-separated (events,single)')
     parser.add_argument('--rates', default='200,1000', help='rates [Hz], comma-separated')
+    parser.add_argument('--links', default='loopback',
+                        help='loopback (one host) and/or veth (plant and client on two virtual '
+                             'hosts; root only), comma-separated, taking turns')
     parser.add_argument('--out', type=Path, help='write the results as JSON here')
     args = parser.parse_args()
+    links = [link.strip() for link in args.links.split(',') if link.strip()]
+    if set(links) - {'loopback', 'veth'}:
+        parser.error(f'--links: loopback or veth, got {args.links}')
     executors = [kind.strip() for kind in args.executors.split(',') if kind.strip()]
     rates = [float(rate) for rate in args.rates.split(',') if rate.strip()]
     # A domain of its own and this machine only, as the tests do.
@@ -193,10 +225,11 @@ def main() -> int:
     runs = []
     for rate in rates:
         for repeat in range(args.repeats):
-            for kind in executors:
-                summary = run_pair(kind, rate, args.duration)
-                runs.append({'rate_hz': rate, 'executor': kind, 'repeat': repeat, **summary})
-                print(f'{rate:6.0f} Hz {kind:6s} #{repeat}: round trip p50 '
+            for kind, link in itertools.product(executors, links):
+                summary = run_pair(kind, rate, args.duration, link)
+                runs.append({'rate_hz': rate, 'executor': kind, 'link': link, 'repeat': repeat,
+                             **summary})
+                print(f'{rate:6.0f} Hz {kind:6s} {link:8s} #{repeat}: round trip p50 '
                       f'{summary["p50_ms"]:.3f} ms, p99 {summary["p99_ms"]:.3f} ms, max '
                       f'{summary["max_ms"]:.3f} ms, unanswered {summary["unanswered"]}/'
                       f'{summary["sent"]}; state leg p50 {summary["state_leg_p50_ms"]:.3f} ms, '
@@ -207,10 +240,12 @@ def main() -> int:
     keys = ('p50_ms', 'p99_ms', 'max_ms', 'unanswered', 'state_leg_p50_ms', 'state_leg_p99_ms',
             'states_missed', 'plant_cpu_s', 'client_cpu_s')
     for rate in rates:
-        for kind in executors:
-            chosen = [r for r in runs if r['rate_hz'] == rate and r['executor'] == kind]
+        for kind, link in itertools.product(executors, links):
+            chosen = [r for r in runs if r['rate_hz'] == rate and r['executor'] == kind
+                      and r['link'] == link]
             medians = {key: statistics.median(r[key] for r in chosen) for key in keys}
-            print(f'{rate:6.0f} Hz {kind:6s} medians over {len(chosen)} runs: ' + ', '.join(
+            print(f'{rate:6.0f} Hz {kind:6s} {link:8s} medians over {len(chosen)} runs: '
+                  + ', '.join(
                 f'{key} {value:.3f}' for key, value in medians.items()))
     if args.out:
         args.out.write_text(json.dumps({

@@ -11,8 +11,10 @@ import time
 from collections import defaultdict
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 from rclpy.context import Context
 from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
@@ -132,3 +134,26 @@ def read_so_far(running: Session) -> SessionData:
     copy = Path(running.folder) / 'bag_so_far'
     recover_bag(running.bag, copy)
     return read_session(copy)
+
+
+def outside_stalls(data: SessionData, rate: float, gap: float = 0.05,
+                   settle: float = 1.0) -> tuple[SessionData, float]:
+    """Return the session without the states of the stretches a process stall disturbed.
+
+    A stall of any node process (the plants, the controller, the gait publisher: issue 11,
+    bench/README.md "Stalls") shows as a gap of over ``gap`` seconds in its stream's stamps;
+    the states from its start to ``settle`` seconds after it are left out, and the seconds
+    left out (at ``rate`` [Hz]) are returned with the data.
+    """
+    streams = [data.reference_t] + [series['t'] for series in data.states.values()] \
+        + [series['t'] for series in data.commands.values()]
+    windows = [(t[i], t[i + 1] + settle) for t in streams if len(t) > 1
+               for i in np.flatnonzero(np.diff(t) > gap)]
+    states, left_out = {}, 0.0
+    for joint, series in data.states.items():
+        keep = np.ones(len(series['t']), dtype=bool)
+        for start, end in windows:
+            keep &= ~((series['t'] >= start) & (series['t'] <= end))
+        states[joint] = {name: values[keep] for name, values in series.items()}
+        left_out = max(left_out, float(np.sum(~keep)) / rate)
+    return replace(data, states=states), left_out

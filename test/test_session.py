@@ -8,12 +8,10 @@ kill a plant. The tests run in file order and share the session.
 from __future__ import annotations
 
 import time
-from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
 import pytest
-from session_observer import observed_session, read_so_far
+from session_observer import observed_session, outside_stalls, read_so_far
 
 from exo_has_control.analysis import rates, tracking
 from exo_has_control.report import segments_of, write_report
@@ -51,32 +49,10 @@ def recorded(session):
     return read_so_far(running)
 
 
-def outside_stalls(data, gap=0.05, settle=1.0):
-    """Return the session without the states of the stretches a process stall disturbed.
-
-    A stall of any node process (the plants, the controller, the gait publisher: issue 11,
-    bench/README.md "Stalls") shows as a gap of over ``gap`` seconds in its stream's stamps;
-    the states from its start to ``settle`` seconds after it are left out, and the seconds
-    left out are returned with the data.
-    """
-    streams = [data.reference_t] + [series['t'] for series in data.states.values()] \
-        + [series['t'] for series in data.commands.values()]
-    windows = [(t[i], t[i + 1] + settle) for t in streams if len(t) > 1
-               for i in np.flatnonzero(np.diff(t) > gap)]
-    states, left_out = {}, 0.0
-    for joint, series in data.states.items():
-        keep = np.ones(len(series['t']), dtype=bool)
-        for start, end in windows:
-            keep &= ~((series['t'] >= start) & (series['t'] <= end))
-        states[joint] = {name: values[keep] for name, values in series.items()}
-        left_out = max(left_out, float(np.sum(~keep)) / RATE)
-    return replace(data, states=states), left_out
-
-
 def test_the_hips_track_within_the_papers_squat_band_and_the_knees_within_their_bound(recorded):
     # Judged outside process stalls, which are issue 11's (a stall of 0.2 s once took a hip's
     # walking peak to 17.9 deg); what they take away is bounded instead.
-    steady, left_out = outside_stalls(recorded)
+    steady, left_out = outside_stalls(recorded, RATE)
     assert left_out <= 0.1 * sum(DURATIONS), left_out
     rows = tracking(steady, segments_of(MOTIONS, DURATIONS))
     assert len(rows) == 8

@@ -5,7 +5,10 @@ For every joint listed in ``joints``, takes the reference angle from ``joint_ref
 linkage (paper Eq. 1), and answers every HAS state with a motor speed command: the loop runs at
 the rate of the position samples, as the paper's STM32 does at 200 Hz. Before the first
 reference a joint holds its first measured position. A FATAL safety event stops every joint
-(motor speed 0, drive disabled: the compact valve falls to free mode) until a RESET event::
+(motor speed 0, drive disabled: the compact valve falls to free mode) until a RESET event; a
+lost reference (STALE_REFERENCE, latched) holds every joint where it stands, under control,
+references ignored, until a RESET event. After either, each joint rejoins the reference at no
+more than ``reference_rejoin_speed``::
 
     ros2 run exo_has_control pd_controller --ros-args -p joints:="['left_hip', 'left_knee']"
 
@@ -23,7 +26,7 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 
 from exo_has_control.pd import PAPER_KD, PAPER_KP, PdGains, PositionLoop
-from exo_has_control.tracking import ReferenceFollower
+from exo_has_control.tracking import DEFAULT_REJOIN_SPEED, ReferenceFollower
 from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
 from exo_has_runtime.execution import run_node
 from exo_has_runtime.joints import JOINT_NAMES, check_joint, joint_type_of
@@ -56,18 +59,24 @@ class PdController(Node):
             description='age [s] after which a reference is held still (its velocity dropped)',
             read_only=True,
             floating_point_range=[FloatingPointRange(from_value=0.001, to_value=10.0)])).value
+        rejoin_speed = self.declare_parameter(
+            'reference_rejoin_speed', DEFAULT_REJOIN_SPEED, ParameterDescriptor(
+                description='fastest cylinder speed [m/s] at which a joint rejoins the '
+                            'reference after a stop or a hold', read_only=True,
+                floating_point_range=[FloatingPointRange(from_value=0.001, to_value=1.0)])).value
         self._loops: dict[str, PositionLoop] = {}
         self._followers: dict[str, ReferenceFollower] = {}
         self._command_publishers = {}
         for joint in (check_joint(j) for j in joints):
             params = self._joint_type_parameters(joint_type_of(joint))
             self._loops[joint] = PositionLoop(self._gains(params))
-            self._followers[joint] = ReferenceFollower(joint, params, timeout)
+            self._followers[joint] = ReferenceFollower(joint, params, timeout, rejoin_speed)
             self._command_publishers[joint] = self.create_publisher(
                 HasCommand, has_command_topic(joint), qos_profile_sensor_data)
             self.create_subscription(HasState, has_state_topic(joint),
                                      partial(self._on_state, joint), qos_profile_sensor_data)
         self._stopped = False
+        self._holding = False
         self.create_subscription(JointState, JOINT_REFERENCE_TOPIC, self._on_reference,
                                  qos_profile_sensor_data)
         self.create_subscription(SafetyEvent, SAFETY_EVENT_TOPIC, self._on_event,
@@ -117,6 +126,8 @@ class PdController(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def _on_reference(self, reference: JointState) -> None:
+        if self._holding:
+            return  # a lost reference holds the joints until a reset, even once it is back
         now = self._now()
         for follower in self._followers.values():
             problem = follower.take(now, reference.name, reference.position, reference.velocity)
@@ -138,11 +149,18 @@ class PdController(Node):
             self.get_logger().error(f'stopped by a fatal safety event: {event.text}')
             for joint in self._loops:
                 self._publish(joint, 0.0, False)
-        elif event.kind == SafetyEvent.KIND_RESET and not event.latched and self._stopped:
-            self._stopped = False
+        elif event.kind == SafetyEvent.KIND_STALE_REFERENCE and event.latched \
+                and not self._holding:
+            self._holding = True
             for joint, loop in self._loops.items():
                 self._followers[joint].hold(loop.position)
-            self.get_logger().info('safety reset: control resumed')
+            self.get_logger().warning(f'holding every joint: {event.text}')
+        elif event.kind == SafetyEvent.KIND_RESET and not event.latched \
+                and (self._stopped or self._holding):
+            self._stopped = self._holding = False
+            for joint, loop in self._loops.items():
+                self._followers[joint].rejoin(loop.position)
+            self.get_logger().info('safety reset: control resumed, rejoining the reference')
 
     def _publish(self, joint: str, motor_speed: float, enable: bool) -> None:
         command = HasCommand(joint=joint, motor_speed=motor_speed, enable=enable)

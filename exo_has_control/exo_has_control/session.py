@@ -24,8 +24,9 @@ from __future__ import annotations
 import os
 import re
 import signal
+import subprocess
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,11 +35,13 @@ from exo_has_control.errors import DomainInUseError
 from exo_has_driver.hardware.bus import random_multicast_group
 from exo_has_runtime.container import ComponentSpec
 from exo_has_runtime.joints import JOINT_NAMES, joint_type_of
+from exo_has_runtime.testing.hosts import OPERATOR, ROBOT, VirtualHosts, discovery_environment
 from exo_has_runtime.testing.processes import NodeProcess
 from exo_has_runtime.topics import (
     DIAGNOSTICS_TOPIC,
     JOINT_REFERENCE_TOPIC,
     SAFETY_EVENT_TOPIC,
+    SAFETY_RESET_TOPIC,
     has_command_topic,
     has_state_topic,
     load_force_topic,
@@ -101,6 +104,7 @@ class NodeSpec:
     stdin: bool = False  # a pipe to its standard input (the simulated devices' fault injection)
     node_class: str = ''  # package.module:Class, for composition
     members: tuple[str, ...] = ()  # the nodes a container runs (empty: just this one)
+    host: str = ROBOT  # where it runs in a two-host session: robot or operator
 
 
 def compose(specs: list[NodeSpec], name: str, members: tuple[str, ...]) -> list[NodeSpec]:
@@ -125,12 +129,18 @@ def compose(specs: list[NodeSpec], name: str, members: tuple[str, ...]) -> list[
         if not part.node_class or part.stdin:
             msg = f'cannot compose {part.name}: it is not a node class'
             raise ValueError(msg)
+    hosts = {part.host for part in parts}
+    if len(hosts) > 1:
+        msg = (f'cannot compose {", ".join(members)}: they run on different hosts '
+               f'({", ".join(sorted(hosts))})')
+        raise ValueError(msg)
     arguments = [token for part in parts
                  for token in ComponentSpec(part.node_class, part.arguments).command_line()]
     # Every member's ready line, in any order.
     ready = '(?s)' + ''.join(f'(?=.*{part.ready})' for part in parts)
     container = NodeSpec(name, 'exo_has_runtime.container', tuple(arguments), ready=ready,
-                         stage=min(part.stage for part in parts), members=members)
+                         stage=min(part.stage for part in parts), members=members,
+                         host=parts[0].host)
     # In the place of the earliest member: every spec before it stays before it.
     position = min(specs.index(part) for part in parts)
     rest = [spec for spec in specs if spec.name not in members]
@@ -180,6 +190,11 @@ class SessionConfig:
     realtime_priority : int
         SCHED_FIFO priority of the plants' loops, or of the driver's I/O thread (0: the
         default scheduler; see exo_has_runtime.realtime).
+    hosts : int
+        1: every node on this machine. 2: the robot side (joints, controller, watchdog and a
+        recorder of its own, ``robot_recorder``) and the operator side (gait publisher and
+        recorder) on two virtual hosts joined by a link (:mod:`exo_has_runtime.testing.hosts`;
+        root only), as on a robot PC and an operator's laptop.
     composition : dict or None
         Nodes composed into one process (:mod:`exo_has_runtime.container`), as process name:
         node names; every other node runs in its own process. None: :data:`COMPOSITION`, the
@@ -202,8 +217,12 @@ class SessionConfig:
     can_channel: str = ''
     realtime_priority: int = 0
     composition: dict[str, tuple[str, ...]] | None = None
+    hosts: int = 1
 
     def __post_init__(self) -> None:
+        if self.hosts not in (1, 2):
+            msg = f'hosts must be 1 or 2, got {self.hosts!r}'
+            raise ValueError(msg)
         if self.hardware not in HARDWARE:
             msg = f'unknown hardware {self.hardware!r}: expected one of {", ".join(HARDWARE)}'
             raise ValueError(msg)
@@ -222,12 +241,21 @@ class SessionConfig:
 def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
     """Return the nodes of a session."""
     specs = []
+    # One host: everything runs here, on the robot PC as it were.
+    operator = OPERATOR if config.hosts == 2 else ROBOT
     if config.record and bag is not None:
         topics = ','.join(f"'{t}'" for t in recorded_topics(config.loads))
         specs.append(NodeSpec('recorder', 'exo_has_runtime.recorder', (
             '--ros-args', '-p', f'output:={bag}', '-p', f'topics:=[{topics}]',
             *config.node_arguments.get('recorder', ())),
-            ready=r'recording', stage=0, node_class='exo_has_runtime.recorder:Recorder'))
+            ready=r'recording', stage=0, node_class='exo_has_runtime.recorder:Recorder',
+            host=operator))
+        if config.hosts == 2:
+            # The robot keeps its own record: a partition costs the operator's bag, not this.
+            specs.append(NodeSpec('robot_recorder', 'exo_has_runtime.recorder', (
+                '--ros-args', '-r', '__node:=robot_recorder', '-p',
+                f'output:={robot_bag_of(bag)}', '-p', f'topics:=[{topics}]'),
+                ready=r'recording', stage=0, node_class='exo_has_runtime.recorder:Recorder'))
     if config.hardware == 'can':
         channel = config.can_channel or random_multicast_group()
         specs.append(NodeSpec('can_devices', 'exo_has_driver.devices.main', (
@@ -258,8 +286,8 @@ def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
         '-p', f'stale_periods:={config.stale_periods}',
         *config.node_arguments.get('watchdog', ())), stage=3,
         node_class='exo_has_driver.watchdog:Watchdog'))
-    # The controller, the watchdog and the recorder take the references.
-    reference_readers = 2 + int(config.record and bag is not None)
+    # The controller, the watchdog and the recorders take the references.
+    reference_readers = 2 + int(config.record and bag is not None) * config.hosts
     motions = ','.join(f"'{m}'" for m in config.motions)
     durations = ','.join(f'{float(d)}' for d in config.durations)
     specs.append(NodeSpec('gait_publisher', 'exo_has_control.gait_publisher', (
@@ -267,7 +295,7 @@ def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
         '-p', f'rate:={config.rate}', '-p', f'start_delay:={config.start_delay}',
         '-p', f'wait_for_subscribers:={reference_readers}',
         *config.node_arguments.get('gait_publisher', ())),
-        ready=r'gait publisher ready', stage=4,
+        ready=r'gait publisher ready', stage=4, host=operator,
         node_class='exo_has_control.gait_publisher:GaitPublisher'))
     composition = config.composition
     if composition is None:
@@ -275,6 +303,11 @@ def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
     for name, members in composition.items():
         specs = compose(specs, name, members)
     return specs
+
+
+def robot_bag_of(bag: Path) -> Path:
+    """Return the robot side's own bag of a two-host session whose operator records ``bag``."""
+    return bag.with_name('robot_bag')
 
 
 def node_names(config: SessionConfig) -> set[str]:
@@ -372,6 +405,9 @@ class Session:
         self.processes: dict[str, NodeProcess] = {}
         self.specs: dict[str, NodeSpec] = {}
         self.started_at: float | None = None  # monotonic time the first trial starts
+        # The two virtual hosts and their link, in a two-host session (from start() on).
+        self.hosts: VirtualHosts | None = None
+        self.robot_bag = robot_bag_of(self.bag) if self.bag and config.hosts == 2 else None
 
     def start(self, show: Callable[[str], None] = print) -> None:
         """Start every node in order, each once the ones before are ready.
@@ -385,6 +421,11 @@ class Session:
         self.logs.mkdir(parents=True, exist_ok=True)
         specs = node_specs(self.config, self.bag)
         self.specs = {spec.name: spec for spec in specs}
+        if self.config.hosts == 2:
+            self.hosts = VirtualHosts()
+            self.hosts.start()
+            show(f'two hosts: robot {self.hosts.hosts[ROBOT].address}, operator '
+                 f'{self.hosts.hosts[OPERATOR].address}, joined by a link')
         # The recorder first (it reports once it has subscribed), then the plants and the
         # controller, the watchdog once there is something to watch, and the gait publisher
         # last: the trials start when everything is up and the recorder has subscribed to
@@ -393,17 +434,22 @@ class Session:
             for stage in sorted({spec.stage for spec in specs}):
                 group = [spec for spec in specs if spec.stage == stage]
                 for spec in group:
+                    env, netns = self.env, None
+                    if self.hosts is not None:
+                        host = self.hosts.hosts[spec.host]
+                        env, netns = {**env, **discovery_environment(host.name)}, host.netns
                     self.processes[spec.name] = NodeProcess(
-                        spec.module, spec.arguments, env=self.env,
-                        log_path=self.logs / f'{spec.name}.log', stdin=spec.stdin)
+                        spec.module, spec.arguments, env=env,
+                        log_path=self.logs / f'{spec.name}.log', stdin=spec.stdin, netns=netns)
                     show(f'started {spec.name} (pid {self.processes[spec.name].process.pid})')
                 for spec in group if stage > 0 else ():
                     self.processes[spec.name].wait_for_output(spec.ready, READY_TIMEOUT)
                 time.sleep(SETTLE_TIME)
-            if 'recorder' in self.processes:
-                # At least the session's own topics (load topics come when someone publishes,
-                # and the count rises by as many as discovery found at once).
-                self._wait_for_recording(len(recorded_topics()))
+            for recorder in ('recorder', 'robot_recorder'):
+                if recorder in self.processes:
+                    # At least the session's own topics (load topics come when someone
+                    # publishes, and the count rises by as many as discovery found at once).
+                    self._wait_for_recording(recorder, len(recorded_topics()))
             # The gait publisher's start delay runs once its readers have matched.
             self.process_of('gait_publisher').wait_for_output(r'trials start in', READY_TIMEOUT)
             self.started_at = time.monotonic() + self.config.start_delay
@@ -411,33 +457,48 @@ class Session:
             self.stop()
             raise
 
-    def _wait_for_recording(self, topics: int) -> None:
-        recorder = self.processes['recorder']
+    def _wait_for_recording(self, name: str, topics: int) -> None:
+        recorder = self.processes[name]
         deadline = time.monotonic() + READY_TIMEOUT
         while True:
             counts = [int(n) for n in re.findall(r'recording (\d+) topics', recorder.output)]
             if counts and max(counts) >= topics:
                 return
             if time.monotonic() > deadline or recorder.process.poll() is not None:
-                msg = (f'the recorder did not subscribe to {topics} topics within '
+                msg = (f'{name} did not subscribe to {topics} topics within '
                        f'{READY_TIMEOUT:g} s; its output:\n{recorder.output}')
                 raise TimeoutError(msg)
             time.sleep(0.05)
 
     def run(self, show: Callable[[str], None] = print, interval: float = 2.0,
-            extra: float = 1.0) -> None:
-        """Let the trials run to their end (plus ``extra`` seconds), showing progress."""
+            extra: float = 1.0, actions: Sequence[tuple[float, str, Callable[[], object]]] = (),
+            ) -> None:
+        """Let the trials run to their end (plus ``extra`` seconds), showing progress.
+
+        ``actions``: ``(time [s from the first trial's start], what, do)``, each done once at
+        its time, in order (link faults and resets in a two-host session, say).
+        """
         if self.started_at is None:
             msg = 'start the session first'
             raise RuntimeError(msg)
         end = self.started_at + self.config.duration + extra
+        pending = sorted(actions, key=lambda action: action[0])
+        next_show = time.monotonic()
         while (now := time.monotonic()) < end:
             elapsed = now - self.started_at
-            show(f'[{elapsed:5.1f} s / {self.config.duration:.0f} s] {self.status()}')
-            dead = [name for name, p in self.processes.items() if p.process.poll() is not None]
-            if dead:
-                show(f'stopped unexpectedly: {", ".join(dead)}')
-            time.sleep(min(interval, max(0.0, end - time.monotonic())))
+            while pending and pending[0][0] <= elapsed:
+                _, what, do = pending.pop(0)
+                show(f'[{elapsed:5.1f} s] {what}')
+                do()
+            if now >= next_show:
+                show(f'[{elapsed:5.1f} s / {self.config.duration:.0f} s] {self.status()}')
+                dead = [name for name, p in self.processes.items()
+                        if p.process.poll() is not None]
+                if dead:
+                    show(f'stopped unexpectedly: {", ".join(dead)}')
+                next_show = now + interval
+            due = [next_show, end] + ([self.started_at + pending[0][0]] if pending else [])
+            time.sleep(max(0.0, min(due) - time.monotonic()))
 
     def status(self) -> str:
         """One line: the trial running and the safety events so far."""
@@ -458,7 +519,42 @@ class Session:
         codes = {}
         for name in reversed(list(self.processes)):
             codes[name] = self.processes[name].stop()
+        if self.hosts is not None:
+            self.hosts.close()
         return codes
+
+    def reset(self, timeout: float = 15.0) -> None:
+        """Ask the watchdog to release a stop or a hold, from the operator's side.
+
+        Publishes std_msgs/Empty on ``safety_reset`` once the watchdog has matched, as ``ros2
+        topic pub --once`` would, from a process on the operator's host in a two-host
+        session, and waits until the watchdog acknowledged it (reliable: resent over a lossy
+        link).
+
+        Raises
+        ------
+        TimeoutError
+            If the reset could not be sent within ``timeout`` seconds (no watchdog reached).
+
+        """
+        env, netns = self.env, None
+        if self.hosts is not None:
+            host = self.hosts.hosts[OPERATOR]
+            env, netns = {**env, **discovery_environment(host.name)}, host.netns
+        sender = NodeProcess('exo_has_runtime.testing.peers', (
+            'publish', f'/{SAFETY_RESET_TOPIC}=std_msgs/msg/Empty={{}}', '--count', '1',
+            '--duration', f'{timeout:g}', '--name', 'operator_reset'), env=env, netns=netns,
+            log_path=self.logs / f'reset_{time.monotonic_ns()}.log')
+        try:
+            code = sender.wait(timeout)
+        except subprocess.TimeoutExpired:
+            sender.stop()
+            msg = f'no reset sent within {timeout:g} s: {sender.output}'
+            raise TimeoutError(msg) from None
+        if code != 0 or 'ACKED' not in sender.output.replace('NOT ACKED', ''):
+            msg = (f'the reset was not acknowledged within {timeout:g} s (exit code {code}; '
+                   f'no watchdog reached?): {sender.output}')
+            raise TimeoutError(msg)
 
     def process_of(self, node: str) -> NodeProcess:
         """Return the process that runs a node (its own, or its container).

@@ -4,6 +4,9 @@ A reference angle becomes a cylinder extension through the linkage (paper Eq. 1)
 angular velocity a cylinder velocity through the linkage's Jacobian. Angles beyond the linkage's
 reach are clamped to the stroke. A reference older than the timeout is held still: its velocity
 is dropped so that a dead reference publisher leaves the joint standing, not drifting.
+After a stop or a hold (:meth:`ReferenceFollower.rejoin`) the joint does not jump to a
+reference that moved on meanwhile: its target moves from where the joint stands toward the
+reference at no more than the rejoin speed, then follows it.
 """
 
 from __future__ import annotations
@@ -13,6 +16,11 @@ from collections.abc import Sequence
 
 from exo_has_sim.kinematics import Linkage
 from exo_has_sim.parameters import HasParameters
+
+#: Default rejoin speed [m/s]: a sixth of the knee cylinder's peak speed in walking (0.31 m/s
+#: with the shipped gait), a third of either joint's in squatting (0.14-0.15 m/s), and fast
+#: enough to cross a whole stroke (0.13 m) in under 3 s, within the watchdog's start-up grace.
+DEFAULT_REJOIN_SPEED = 0.05
 
 
 class ReferenceFollower:
@@ -26,15 +34,26 @@ class ReferenceFollower:
         Its HAS, for the linkage.
     timeout : float
         Age [s] after which the reference is held still.
+    rejoin_speed : float
+        Fastest cylinder speed [m/s] at which the target rejoins the reference after
+        :meth:`rejoin`.
 
     """
 
-    def __init__(self, joint: str, params: HasParameters, timeout: float) -> None:
+    def __init__(self, joint: str, params: HasParameters, timeout: float,
+                 rejoin_speed: float = DEFAULT_REJOIN_SPEED) -> None:
+        if not (math.isfinite(rejoin_speed) and rejoin_speed > 0.0):
+            msg = f'rejoin speed {rejoin_speed!r} m/s must be positive'
+            raise ValueError(msg)
         self.joint = joint
         self.linkage = Linkage.from_parameters(params)
         self.stroke = params.stroke
         self.timeout = timeout
+        self.rejoin_speed = rejoin_speed
         self._target: tuple[float, float, float] | None = None  # (t [s], x [m], v [m/s])
+        # While rejoining: the time [s] the ramp was last moved (None: not yet) and its
+        # position [m].
+        self._ramp: tuple[float | None, float] | None = None
 
     def take(self, t: float, names: Sequence[str], angles: Sequence[float],
              rates: Sequence[float]) -> str | None:
@@ -58,9 +77,23 @@ class ReferenceFollower:
                     f'linkage range [{low:.1f}, {high:.1f}] deg: clamped to the stroke')
         return None
 
+    @property
+    def rejoining(self) -> bool:
+        """Whether the target is still on its way back to the reference."""
+        return self._ramp is not None
+
     def hold(self, position: float | None) -> None:
         """Forget the reference and hold a position [m] (None: wait for a reference)."""
         self._target = None if position is None else (-math.inf, position, 0.0)
+        self._ramp = None
+
+    def rejoin(self, position: float | None) -> None:
+        """Hold a position [m], then move toward the next references at the rejoin speed.
+
+        None (nothing measured yet): wait for a reference, as at the start.
+        """
+        self.hold(position)
+        self._ramp = None if position is None else (None, position)
 
     def target(self, t: float, measured: float) -> tuple[float, float]:
         """Cylinder position [m] and velocity [m/s] to track at t [s].
@@ -71,5 +104,15 @@ class ReferenceFollower:
             self._target = (-math.inf, measured, 0.0)
         received, x, v = self._target
         if t - received > self.timeout:
-            return x, 0.0
-        return x, v
+            v = 0.0
+        if self._ramp is None:
+            return x, v
+        moved, ramp = self._ramp
+        step = 0.0 if moved is None else self.rejoin_speed * max(0.0, t - moved)
+        gap = x - ramp
+        if abs(gap) <= step and received > -math.inf:
+            self._ramp = None  # caught up with a reference taken since the hold
+            return x, v
+        ramp += math.copysign(min(step, abs(gap)), gap)
+        self._ramp = (t, ramp)
+        return ramp, math.copysign(self.rejoin_speed, gap) if gap else 0.0

@@ -35,6 +35,7 @@ class SafetyKind(IntEnum):
     E_STOP = 12
     RESET = 13
     SECOND_SOURCE = 14
+    STALE_REFERENCE = 15
 
     @property
     def label(self) -> str:

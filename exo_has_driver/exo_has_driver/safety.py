@@ -25,6 +25,16 @@ The rules, per joint (thresholds in :class:`SafetyLimits`):
   driver, a second controller, a replay or a left-over test node on a running system, which
   the other rules cannot tell from the real one: SECOND_SOURCE, FATAL, naming the publishers.
 
+One rule is for the whole system (:meth:`Watchdog.check_reference`): no joint reference for
+longer than the state timeout after one came, while its publisher is still in the graph (a
+link to the operator's machine lost, not a gait publisher that ended): STALE_REFERENCE, ERROR,
+latched as a *hold* (:attr:`Watchdog.holding`). Not FATAL: the robot side is sound and its
+controller holds each joint where it is, which is safer for a wearer in mid-squat than a
+stop that disables the drives (their valves fall to free mode and the joints give way). The
+hold, like a stop, lasts until :meth:`Watchdog.reset`, refused while the reference is still
+stale, so that motion resumes only on request. After any reset the tracking rule waits the
+start-up grace, the time a controller takes to bring each joint back to its reference.
+
 A persisting condition is reported once, when it arises. A FATAL event latches a stop
 (:attr:`Watchdog.stopped`) until :meth:`Watchdog.reset`, which is refused (a WARN event of the
 condition's kind) while a fatal condition still holds: a stale state, an open safety valve, a
@@ -35,8 +45,8 @@ but every other rule keeps reporting new conditions once each.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, fields
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, fields, replace
 
 from exo_has_driver.errors import SafetyConfigError
 from exo_has_driver.events import Condition, Event, SafetyKind, Severity, StopLatch
@@ -239,6 +249,8 @@ class _Joint:
     reference: float | None = None
     tracking_error: float | None = None
     over_limit_since: float | None = None
+    # Tracking errors are judged from this time on [s]: after a reset, joints rejoin first.
+    tracking_from: float = -math.inf
     # Publishers found on the joint's topics, by topic: more than one on any is a fault.
     sources: dict[str, tuple[str, ...]] = field(default_factory=dict)
     # Kinds whose condition holds and has been reported (the deduplication).
@@ -276,6 +288,9 @@ class Watchdog:
         self._start = start
         self._joints = {joint: _Joint(limit, start) for joint, limit in limits.items()}
         self._latch = StopLatch()
+        self._reference_timeout = min(limit.state_timeout for limit in limits.values())
+        self._reference_time: float | None = None
+        self._hold: Event | None = None
 
     @property
     def joints(self) -> tuple[str, ...]:
@@ -286,6 +301,11 @@ class Watchdog:
     def stopped(self) -> bool:
         """Whether a stop is latched."""
         return self._latch.latched
+
+    @property
+    def holding(self) -> bool:
+        """Whether a hold is latched (a lost reference): the joints hold until a reset."""
+        return self._hold is not None
 
     @property
     def cause(self) -> Event | None:
@@ -394,7 +414,42 @@ class Watchdog:
             state = self._joints.get(joint)
             if state is not None:
                 state.reference = float(angle) if math.isfinite(angle) else None
+                self._reference_time = t
         return []
+
+    def check_reference(self, t: float, source_present: Callable[[], bool]) -> list[Event]:
+        """Check at time t [s] that the joint reference still comes; call it periodically.
+
+        Parameters
+        ----------
+        t : float
+            Time now [s].
+        source_present : Callable[[], bool]
+            Tells whether the reference's publisher is still in the graph; asked only once
+            the reference is stale. One that left (a gait publisher that ended) withdrew the
+            reference: nothing is raised, and nothing is judged until a reference comes again.
+
+        Returns
+        -------
+        list[Event]
+            STALE_REFERENCE, ERROR, latched (the hold), when the reference became stale with
+            its publisher present; nothing while the hold lasts.
+
+        """
+        if self._reference_time is None or self._hold is not None:
+            return []
+        age = t - self._reference_time
+        if age <= self._reference_timeout:
+            return []
+        if not source_present():
+            self._reference_time = None
+            return []
+        self._hold = Event('', SafetyKind.STALE_REFERENCE, Severity.ERROR, float(age),
+                           self._reference_timeout, True,
+                           f'stale reference: no joint reference for {age:.3f} s (limit '
+                           f'{self._reference_timeout:.3f} s) while its publisher is in the '
+                           'graph: every joint holds until a reset')
+        return [self._hold]
 
     def on_sources(self, joint: str, topic: str, publishers: Sequence[str]) -> list[Event]:
         """Take the publishers the ROS graph shows on one of a joint's topics.
@@ -457,29 +512,44 @@ class Watchdog:
         return events
 
     def reset(self, t: float) -> list[Event]:
-        """Release a latched stop at time t [s], unless a fatal condition still holds.
+        """Release a latched stop or hold at time t [s], unless a condition still holds.
 
         Returns
         -------
         list[Event]
             One event. Released (or nothing was latched): RESET, INFO, not latched. Refused:
-            the kind, joint, value and limit of the first condition that still holds, WARN,
-            latched, the text listing every such condition. Not RESET: SafetyEvent defines it
-            as a released stop, on which controllers resume.
+            the kind, joint, value and limit of the first condition that still holds (a fatal
+            one, or the stale reference of a hold), WARN, latched, the text listing every such
+            condition. Not RESET: SafetyEvent defines it as a release, on which controllers
+            resume.
 
         """
-        if self._latch.latched:
-            refusal = self._latch.refusal(self._holding(t))
-            if refusal is not None:
-                return [refusal]
-            for state in self._joints.values():
+        holding = self._holding(t) if self._latch.latched else []
+        if self._hold is not None and self._reference_time is not None \
+                and t - self._reference_time > self._reference_timeout:
+            age = t - self._reference_time
+            holding.append(Condition(('', SafetyKind.STALE_REFERENCE), '',
+                                     SafetyKind.STALE_REFERENCE, age, self._reference_timeout,
+                                     f'no joint reference for {age:.3f} s'))
+        refusal = self._latch.refusal(holding)
+        if refusal is not None:
+            return [replace(refusal, latched=True)]
+        hold, self._hold = self._hold, None
+        stopped = self._latch.latched
+        for state in self._joints.values() if stopped or hold is not None else ():
+            # Tracking is judged again once the joints had the start-up grace to rejoin.
+            state.tracking_from = t + state.limits.startup_grace
+            state.over_limit_since = None
+            state.active.discard(SafetyKind.TRACKING_ERROR)
+            if stopped:
                 # Controllers resume on the reset: give them the start-up grace again.
                 state.command_time = None
                 state.command_epoch = t
                 state.enabled = False
-                state.over_limit_since = None
-                state.active -= {SafetyKind.TRACKING_ERROR, SafetyKind.STALE_COMMAND,
-                                 SafetyKind.INVALID_COMMAND}
+                state.active -= {SafetyKind.STALE_COMMAND, SafetyKind.INVALID_COMMAND}
+        if hold is not None and not stopped:
+            return [Event('', SafetyKind.RESET, Severity.INFO, math.nan, math.nan, False,
+                          f'reset: hold released (latched by {hold.text})')]
         return [self._latch.release()]
 
     def diagnostics(self, t: float) -> list[JointDiagnostic]:
@@ -501,9 +571,12 @@ class Watchdog:
             parts += [SafetyKind(kind).label for kind in kinds]
             if self._latch.latched:
                 parts.append('stopped until reset')
+            elif self._hold is not None:
+                parts.append('holding until reset: reference lost')
             if stale:
                 level = LEVEL_STALE
-            elif self._latch.latched or set(kinds) - {SafetyKind.OVER_PRESSURE}:
+            elif self._latch.latched or self._hold is not None \
+                    or set(kinds) - {SafetyKind.OVER_PRESSURE}:
                 level = LEVEL_ERROR
             elif kinds:
                 level = LEVEL_WARN
@@ -632,8 +705,11 @@ class Watchdog:
             state.over_limit_since = None
             state.active.discard(SafetyKind.TRACKING_ERROR)
             return []
-        # A disabled drive does not track (its valve is in free mode); neither does a stop.
-        if self._latch.latched or not state.enabled:
+        # A disabled drive does not track (its valve is in free mode); neither does a stop,
+        # a hold (the joint stays put while the reference moves on), nor a joint rejoining
+        # its reference after a reset.
+        if self._latch.latched or self._hold is not None or not state.enabled \
+                or t < state.tracking_from:
             state.over_limit_since = None
             return []
         if state.over_limit_since is None:

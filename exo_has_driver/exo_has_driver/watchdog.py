@@ -9,6 +9,9 @@ up to one check period (5 ms at 200 Hz) after it arrived (bench/README.md). With
 false each message has its callback, and a check judges every message taken before it. The
 subscriptions keep a second of each topic (``DEEP_SENSOR_QOS``), so a watchdog held up still
 sees each sample once it runs again.
+A joint reference that stops coming while its publisher is still in the graph (the link to
+the operator's machine lost) latches a hold, an ERROR: the controller holds every joint until
+a reset (:mod:`exo_has_driver.safety`).
 Its events go out on ``safety_events`` (reliable, transient local, so that a node started later
 learns of a latched stop), a summary per joint on ``/diagnostics`` at 1 Hz, and, while a stop
 is latched, stop commands (motor speed 0, drive disabled) on every joint's ``has_command`` at
@@ -260,8 +263,13 @@ class Watchdog(Node):
         else:
             self._deferred = False
             self._emit(now, core.check(t))
+            self._emit(now, core.check_reference(t, self._reference_source_present))
         if core.stopped:
             self._send_stop(now)
+
+    def _reference_source_present(self) -> bool:
+        """Whether a publisher of the joint reference is in the graph (asked when stale)."""
+        return self.count_publishers(JOINT_REFERENCE_TOPIC) > 0
 
     def _on_source_check(self) -> None:
         """Look for more than one publisher on each joint's state and command topics."""

@@ -375,3 +375,88 @@ def test_one_publisher_per_topic_on_every_joint_raises_nothing():
         assert watchdog.on_sources(joint, f'/{joint}/has_command', ['/pd_controller']) == []
         assert watchdog.on_sources(joint, f'/{joint}/has_command', []) == []
     assert not watchdog.stopped
+
+
+class SourceCheck:
+    """Stands for the graph: says whether the reference's publisher is present, counting asks."""
+
+    def __init__(self, present=True):
+        self.present = present
+        self.asked = 0
+
+    def __call__(self):
+        """Answer whether the publisher is present."""
+        self.asked += 1
+        return self.present
+
+
+def referenced(until=0.1):
+    """Return a running watchdog that also had a reference every period up to ``until`` [s]."""
+    watchdog, t = running(until)
+    for at in np.arange(0.0, until, PERIOD):
+        assert watchdog.on_reference(at, dict.fromkeys(JOINT_NAMES, 0.3)) == []
+    return watchdog, t - PERIOD
+
+
+def test_nothing_is_judged_of_a_reference_before_the_first_one():
+    watchdog, t = running()
+    source = SourceCheck()
+    assert watchdog.check_reference(t + 10.0, source) == []
+    assert source.asked == 0 and not watchdog.holding
+
+
+def test_a_lost_reference_latches_one_hold_an_error_not_a_stop():
+    watchdog, last = referenced()
+    source = SourceCheck()
+    assert watchdog.check_reference(last + 0.049, source) == []  # within the limit
+    assert source.asked == 0  # the graph is asked only once the reference is stale
+    event = only(watchdog.check_reference(last + 0.06, source))
+    assert (event.joint, event.kind, event.severity, event.latched) == (
+        '', SafetyKind.STALE_REFERENCE, Severity.ERROR, True)
+    assert (event.value, event.limit) == (pytest.approx(0.06), 0.05)
+    assert 'no joint reference for 0.060 s' in event.text
+    assert watchdog.holding and not watchdog.stopped
+    assert watchdog.check_reference(last + 1.0, source) == []  # once while it lasts
+    assert feed(watchdog, last + 1.0) == []  # the robot side itself is sound
+    # The reference comes back, far from where the joints hold: no tracking error while held.
+    assert tracking_states(watchdog, 'left_knee', last + 1.0, 0.5, 0.8) == []
+    assert watchdog.holding and not watchdog.stopped
+
+
+def test_a_hold_is_released_only_by_a_reset_once_the_reference_is_back():
+    watchdog, last = referenced()
+    only(watchdog.check_reference(last + 0.1, SourceCheck()))
+    refused = only(watchdog.reset(last + 0.2))
+    assert (refused.kind, refused.severity, refused.latched) == (
+        SafetyKind.STALE_REFERENCE, Severity.WARN, True)
+    assert 'reset refused: no joint reference for 0.200 s' in refused.text
+    watchdog.on_reference(last + 0.3, dict.fromkeys(JOINT_NAMES, 0.3))
+    assert watchdog.check_reference(last + 0.3, SourceCheck()) == []
+    assert watchdog.holding  # the reference came back, but motion waits for the reset
+    released = only(watchdog.reset(last + 0.31))
+    assert (released.kind, released.severity, released.latched) == (
+        SafetyKind.RESET, Severity.INFO, False)
+    assert released.text.startswith('reset: hold released (latched by stale reference')
+    assert not watchdog.holding
+
+
+def test_a_reference_withdrawn_by_its_publisher_raises_nothing_until_a_new_one_goes_stale():
+    watchdog, last = referenced()
+    gone = SourceCheck(present=False)
+    assert watchdog.check_reference(last + 0.1, gone) == []
+    assert watchdog.check_reference(last + 0.2, gone) == []
+    assert gone.asked == 1 and not watchdog.holding
+    watchdog.on_reference(last + 1.0, dict.fromkeys(JOINT_NAMES, 0.3))
+    assert only(watchdog.check_reference(last + 1.1, SourceCheck())).kind \
+        == SafetyKind.STALE_REFERENCE
+
+
+def test_after_a_reset_tracking_errors_wait_the_startup_grace_for_the_joints_to_rejoin():
+    watchdog, t = running(startup_grace=1.0)
+    watchdog.on_reference(t, dict.fromkeys(JOINT_NAMES, 0.3))
+    only(watchdog.check_reference(t + 0.1, SourceCheck()))
+    watchdog.on_reference(t + 0.1, dict.fromkeys(JOINT_NAMES, 0.3))  # the reference is back
+    assert only(watchdog.reset(t + 0.1 + PERIOD)).kind == SafetyKind.RESET
+    assert tracking_states(watchdog, 'left_knee', t + 0.1, 0.9, 0.5) == []  # within the grace
+    event = only(tracking_states(watchdog, 'left_knee', t + 1.0, 0.4, 0.5))
+    assert (event.kind, event.severity) == (SafetyKind.TRACKING_ERROR, Severity.FATAL)

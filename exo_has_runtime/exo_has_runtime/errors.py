@@ -54,3 +54,7 @@ class UnfinishedBagError(BagError):
 
 class ReplayError(RuntimeSeamError, ValueError):
     """Replay options that cannot be honoured: a rate that is not positive, an unknown topic."""
+
+
+class HostsUnavailableError(RuntimeSeamError):
+    """Two virtual hosts cannot be made here: not root, or a tool missing (the message says)."""

@@ -12,6 +12,8 @@ time with ``time.time_ns()``, the same clock at a thirtieth of the cost of ``Clo
 Whether simulated time is active is checked again every ``discovery_period``. Topics and types
 come from graph discovery, every ``discovery_period``; a topic is subscribed once it has a
 publisher, with the QoS :mod:`exo_has_runtime.recording` derives from the publishers' offers.
+A topic that came steadily and stops for a while (a lost link) is logged as a gap when it
+comes back (:mod:`exo_has_runtime.bags.gaps`; ``exo-has bag info`` lists them from the bag).
 The bag is flushed as a complete chunk every ``flush_period``, so a killed recorder loses at
 most that much (``exo-has bag recover``), and is closed (``metadata.yaml`` written, after a
 last batch is taken) when the node is destroyed, which
@@ -32,6 +34,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.subscription import Subscription
 
 from exo_has_runtime.bag import BagWriter, offered_qos
+from exo_has_runtime.bags.gaps import GapFinder
 from exo_has_runtime.errors import BagError
 from exo_has_runtime.execution import run_node
 from exo_has_runtime.message_types import message_class
@@ -84,6 +87,7 @@ class Recorder(Node):
             msg = f'parameter output: {exc}'
             raise ValueError(msg) from exc
         self._sim_time = self.get_clock().ros_time_is_active
+        self._gaps = GapFinder()
         # Topic: (subscription, the QoS it asks for).
         self._recorded: dict[str, tuple[Subscription, QosChoice]] = {}
         self._given_up: set[str] = set()
@@ -156,7 +160,7 @@ class Recorder(Node):
     def _write(self, batch: list[Taken]) -> None:
         if self._bag is None or not batch:
             return
-        write = self._bag.write
+        write, gap_after = self._bag.write, self._gaps.take
         if self._sim_time:
             now_ns = self.get_clock().now().nanoseconds
             for taken in batch:
@@ -164,6 +168,8 @@ class Recorder(Node):
         else:
             for taken in batch:
                 write(taken.topic, taken.received_ns, taken.data)
+                if (gap := gap_after(taken.topic, taken.received_ns)) is not None:
+                    self.get_logger().warning(f'gap in the recording: {gap.describe()}')
 
     def _offers(self, topic: str) -> list[Any]:
         return [info.qos_profile for info in self.get_publishers_info_by_topic(topic)]
@@ -174,7 +180,13 @@ class Recorder(Node):
         write = bag.write
 
         def on_message(data: bytes) -> None:
-            write(topic, clock.now().nanoseconds if self._sim_time else wall_ns(), data)
+            if self._sim_time:
+                write(topic, clock.now().nanoseconds, data)
+                return
+            now_ns = wall_ns()
+            write(topic, now_ns, data)
+            if (gap := self._gaps.take(topic, now_ns)) is not None:
+                self.get_logger().warning(f'gap in the recording: {gap.describe()}')
         return on_message
 
     def _give_up(self, topic: str, reason: str) -> None:

@@ -236,6 +236,27 @@ def test_the_summary_gives_each_topics_type_count_span_and_rate(tmp_path):
     text = format_summary(summary)
     assert 'duration:  1.000 s' in text and 'reliable/volatile' in text
     assert '/fast  exo_has_msgs/msg/HasState       201     200.00' in text
+    assert summary.gaps == [] and 'gaps:      none' in text
+
+
+def test_the_summary_lists_where_a_steady_topic_stopped_and_how_much_it_likely_lost(tmp_path):
+    times = [T0_NS + i * 5_000_000 for i in range(400)]  # 2 s at 200 Hz ...
+    times += [times[-1] + 2_000_000_000 + i * 5_000_000 for i in range(1, 200)]  # ... 2 s out
+    with BagWriter(tmp_path / 'bag') as writer:
+        writer.add_topic('/fast', 'exo_has_msgs/msg/HasState')
+        writer.add_topic('/events', 'exo_has_msgs/msg/SafetyEvent')
+        for t in times:
+            writer.write('/fast', t, serialize_message(HasState()))
+        for t in (T0_NS, T0_NS + 3_000_000_000):  # sporadic: never a gap
+            writer.write('/events', t, serialize_message(SafetyEvent()))
+    summary = bag_summary(tmp_path / 'bag')
+    (gap,) = summary.gaps
+    assert (gap.topic, gap.start_ns, gap.end_ns) == ('/fast', times[399], times[400])
+    assert gap.seconds == pytest.approx(2.005) and gap.missing == 400
+    text = format_summary(summary)
+    assert 'gaps:      1' in text
+    assert '/fast: 2.005 s without a message from' in text
+    assert 'about 400 missing at 200 Hz' in text
 
 
 def test_the_bag_command_prints_the_summary_and_recovers(tmp_path, capsys):

@@ -10,7 +10,7 @@ from __future__ import annotations
 import struct
 from collections.abc import Collection, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import NamedTuple
@@ -18,6 +18,7 @@ from typing import NamedTuple
 from rosbags.interfaces import Connection, ConnectionExtRosbag2, Qos
 from rosbags.rosbag2 import Reader, ReaderError
 
+from exo_has_runtime.bags.gaps import Gap, GapFinder
 from exo_has_runtime.errors import (
     BagError,
     BagNotFoundError,
@@ -171,6 +172,7 @@ class BagSummary:
 
     path: Path
     topics: list[TopicSummary]
+    gaps: list[Gap] = field(default_factory=list)
 
     @property
     def message_count(self) -> int:
@@ -206,8 +208,10 @@ def bag_summary(path: str | Path) -> BagSummary:
     """
     topics = bag_topics(path)
     spans: dict[str, list[int]] = {}
+    gaps = GapFinder()
     with read_messages(path) as messages:
         for message in messages:
+            gaps.take(message.topic, message.timestamp_ns)
             span = spans.setdefault(message.topic, [message.timestamp_ns, message.timestamp_ns,
                                                     0])
             span[0] = min(span[0], message.timestamp_ns)
@@ -218,7 +222,7 @@ def bag_summary(path: str | Path) -> BagSummary:
         first, last, count = spans.get(topic.topic, [0, 0, 0])
         summaries.append(TopicSummary(topic.topic, topic.msgtype, count, first, last,
                                       topic.offered_qos))
-    return BagSummary(Path(path).expanduser(), summaries)
+    return BagSummary(Path(path).expanduser(), summaries, gaps.gaps)
 
 
 def format_summary(summary: BagSummary) -> str:
@@ -238,6 +242,8 @@ def format_summary(summary: BagSummary) -> str:
         rate = f'{topic.rate_hz:9.2f}' if topic.rate_hz is not None else f'{"-":>9}'
         lines.append(f'  {topic.topic:<{width}}  {topic.msgtype:<{type_width}}  '
                      f'{topic.count:>8}  {rate}  {_describe_qos(topic.offered_qos)}')
+    lines.append(f'gaps:      {len(summary.gaps) or "none"}')
+    lines += [f'  {gap.describe()}' for gap in summary.gaps]
     return '\n'.join(lines)
 
 

@@ -4,7 +4,8 @@
 prints one JSON line per message received (``{"topic": ..., "cdr": <hex>}``) and ``READY`` once
 subscribed. ``... publish TOPIC=TYPE=JSON ...`` publishes each message (fields as JSON) once a
 subscriber matched (or at once with ``--no-wait``), then every ``--period`` seconds, for
-``--duration`` seconds.
+``--duration`` seconds (or ``--count`` rounds, then waits until every reliable reader
+acknowledged them and prints ``ACKED``, or ``NOT ACKED`` at the end of the duration).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 import rclpy
+from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -73,8 +75,8 @@ def record(node: Node, specs: Sequence[str], qos: QoSProfile, count: int,
 
 
 def publish(node: Node, specs: Sequence[str], qos: QoSProfile, wait: bool, period_s: float,
-            duration_s: float) -> None:
-    """Publish the given messages, repeating every ``period_s``."""
+            duration_s: float, count: int = 0) -> None:
+    """Publish the given messages, repeating every ``period_s``, ``count`` times (0: no end)."""
     items = []
     for spec in specs:
         topic, type_name, fields = spec.split('=', 2)
@@ -87,10 +89,20 @@ def publish(node: Node, specs: Sequence[str], qos: QoSProfile, wait: bool, perio
         if time.monotonic() > deadline:
             return
         rclpy.spin_once(node, timeout_sec=0.02)
+    published = 0
     while True:
         for publisher, message in items:
             publisher.publish(message)
         print('PUBLISHED', flush=True)
+        published += 1
+        if published == count:
+            # A reliable message may need resending (a lossy link, a reader matching late):
+            # leave only once every reader acknowledged it, or the time is up.
+            left = Duration(nanoseconds=max(0, int((deadline - time.monotonic()) * 1e9)))
+            acked = all(p.wait_for_all_acked(left) for p, _ in items
+                        if p.qos_profile.reliability == ReliabilityPolicy.RELIABLE)
+            print('ACKED' if acked else 'NOT ACKED', flush=True)
+            return
         end = time.monotonic() + period_s
         while time.monotonic() < min(end, deadline):
             rclpy.spin_once(node, timeout_sec=0.02)
@@ -105,7 +117,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument('specs', nargs='+', help='TOPIC=TYPE (record) or TOPIC=TYPE=JSON')
     parser.add_argument('--qos', default='reliable,volatile,10',
                         help='RELIABILITY,DURABILITY,DEPTH')
-    parser.add_argument('--count', type=int, default=0, help='record: stop after N messages')
+    parser.add_argument('--count', type=int, default=0,
+                        help='record: stop after N messages; publish: after N rounds')
     parser.add_argument('--duration', type=float, default=10.0, help='seconds to run')
     parser.add_argument('--period', type=float, default=3600.0, help='publish: repeat period')
     parser.add_argument('--no-wait', action='store_true', help='publish: do not wait for match')
@@ -118,7 +131,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             record(node, args.specs, _qos(args.qos), args.count, args.duration)
         else:
             publish(node, args.specs, _qos(args.qos), not args.no_wait, args.period,
-                    args.duration)
+                    args.duration, args.count)
     except UnknownMessageTypeError as exc:
         print(f'peers: {exc}', file=sys.stderr, flush=True)
         return 2

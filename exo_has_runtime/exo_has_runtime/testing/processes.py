@@ -40,12 +40,14 @@ class NodeProcess:
     stdin : bool
         Whether to keep a pipe to the process's standard input for :meth:`send` (a simulated
         device's fault injection, say); otherwise it reads /dev/null.
+    netns : str or None
+        Network namespace to run in (``/proc/<pid>/ns/net``, or ``new``); None: this one.
 
     """
 
     def __init__(self, module: str, args: Sequence[str] = (),
                  env: Mapping[str, str] | None = None, log_path: Path | None = None,
-                 stdin: bool = False) -> None:
+                 stdin: bool = False, netns: str | None = None) -> None:
         self.module = module
         # Kept open while the process runs; closed by stop().
         self._log: IO[bytes]
@@ -57,7 +59,8 @@ class NodeProcess:
         self.log_path = Path(self._log.name)
         self.process = subprocess.Popen(
             [sys.executable, '-u', '-m', 'exo_has_runtime.testing.tether', str(os.getpid()),
-             module, *args], stdout=self._log, start_new_session=True,
+             *(('--netns', netns) if netns is not None else ()), module, *args],
+            stdout=self._log, start_new_session=True,
             stderr=subprocess.STDOUT, stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,
             text=stdin,
             env={**os.environ, **(env or {})},

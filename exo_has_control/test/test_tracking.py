@@ -1,0 +1,70 @@
+"""A joint's reference as cylinder targets: holding, and rejoining after a stop or a hold."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from exo_has_control.tracking import DEFAULT_REJOIN_SPEED, ReferenceFollower
+from exo_has_sim.kinematics import Linkage
+from exo_has_sim.parameters import load_parameters
+
+KNEE = load_parameters('knee')
+LINKAGE = Linkage.from_parameters(KNEE)
+PERIOD = 0.005  # s
+TIMEOUT = 0.1  # s
+
+
+def follower(rejoin_speed=DEFAULT_REJOIN_SPEED):
+    return ReferenceFollower('left_knee', KNEE, TIMEOUT, rejoin_speed)
+
+
+def take(follower_, t, angle, rate=0.0):
+    assert follower_.take(t, ['left_knee'], [angle], [rate]) is None
+
+
+def test_a_reference_is_followed_at_once_and_held_still_once_it_is_old():
+    f = follower()
+    take(f, 0.0, 1.0, 0.5)
+    x, v = f.target(0.05, 0.03)
+    assert x == pytest.approx(LINKAGE.position_at(1.0))
+    assert v == pytest.approx(LINKAGE.velocity_at(1.0, 0.5))
+    assert f.target(0.2, 0.03) == (pytest.approx(x), 0.0)  # older than the timeout
+
+
+def test_after_a_rejoin_the_target_ramps_to_a_distant_reference_at_the_rejoin_speed():
+    f = follower(rejoin_speed=0.05)
+    stand = 0.02  # m, where the joint stands when control resumes
+    f.rejoin(stand)
+    assert f.target(0.0, stand) == (stand, 0.0)  # held until a reference comes
+    far = LINKAGE.position_at(1.2)
+    assert far - stand > 0.03
+    targets = []
+    for t in np.arange(0.0, 2.0, PERIOD):
+        take(f, t, 1.2)
+        targets.append(f.target(t, stand))
+    positions = np.array([x for x, _ in targets])
+    steps = np.diff(positions)
+    assert steps.max() <= 0.05 * PERIOD * (1 + 1e-9)  # never faster than the rejoin speed
+    assert positions[-1] == pytest.approx(far)  # and it caught up
+    caught = int(np.argmax(np.isclose(positions, far)))
+    assert caught * PERIOD == pytest.approx((far - stand) / 0.05, abs=2 * PERIOD)
+    assert not f.rejoining
+    assert targets[1][1] == pytest.approx(0.05)  # the ramp's speed as the feedforward
+
+
+def test_a_rejoin_with_nothing_measured_waits_for_a_reference_without_a_ramp():
+    f = follower()
+    f.rejoin(None)
+    assert not f.rejoining
+    take(f, 0.0, 1.0)
+    assert f.target(0.0, 0.05)[0] == pytest.approx(LINKAGE.position_at(1.0))
+
+
+def test_a_rejoin_speed_that_is_not_positive_is_refused():
+    with pytest.raises(ValueError, match='rejoin speed'):
+        follower(rejoin_speed=0.0)
+    with pytest.raises(ValueError, match='rejoin speed'):
+        follower(rejoin_speed=math.nan)
