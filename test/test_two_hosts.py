@@ -154,10 +154,12 @@ def test_the_robots_bag_keeps_every_state_while_the_operators_says_where_it_lost
     operator = bag_summary(run.session.bag)
     state_topics = {f'/{has_state_topic(joint)}' for joint in JOINT_NAMES}
     assert not [g for g in robot.gaps if g.topic in state_topics], robot.gaps
-    lost = {g.topic: g for g in operator.gaps if g.topic in state_topics}
-    assert set(lost) == state_topics, operator.gaps
-    for gap in lost.values():
-        assert gap.start_ns * 1e-9 == pytest.approx(run.marks['cut'], abs=0.5)
+    # The partition's gap on each state topic; a stall of the operator's recorder may add a
+    # short gap elsewhere (a clean CI run saw one 5.6 s after the cut), which is no error.
+    partition = {g.topic: g for g in operator.gaps if g.topic in state_topics
+                 and abs(g.start_ns * 1e-9 - run.marks['cut']) <= 0.5}
+    assert set(partition) == state_topics, operator.gaps
+    for gap in partition.values():
         assert 1.8 <= gap.seconds <= 2.0 + RECOVERY_BOUND, gap
 
 
