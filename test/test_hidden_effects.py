@@ -23,6 +23,8 @@ second-order motor loop. A table of every draw is printed (``pytest -s``).
 from __future__ import annotations
 
 import json
+import multiprocessing
+import os
 import time
 
 import pytest
@@ -44,21 +46,28 @@ def diagnose_csv(path, joint_type, load_mass, out):
     return json.loads(out.read_text())
 
 
+def run_draw(task):
+    """Simulate one draw of a plant, write its CSV, diagnose it; return the table row."""
+    plant_name, seed, effect, folder = task
+    plant = {tp.__name__: tp, sp.__name__: sp}[plant_name]
+    draw = plant.draw(seed, effect=effect, duration=20.0)
+    path = folder / f'draw_{seed}.csv'
+    plant.write_csv(draw, path)
+    started = time.perf_counter()
+    doc = diagnose_csv(path, draw.joint_type, 50.0, folder / f'draw_{seed}.json')
+    return {'plant': plant_name, 'draw': draw, 'doc': doc,
+            'wall': time.perf_counter() - started}
+
+
 @pytest.fixture(scope='module')
 def results(tmp_path_factory):
     folder = tmp_path_factory.mktemp('hidden')
-    rows = []
-    for plant, draws, first_seed in PLANTS:
-        for i in range(draws):
-            seed = first_seed + i
-            draw = plant.draw(seed, effect=tp.EFFECT_CHOICES[i % len(tp.EFFECT_CHOICES)],
-                              duration=20.0)
-            path = folder / f'draw_{seed}.csv'
-            plant.write_csv(draw, path)
-            started = time.perf_counter()
-            doc = diagnose_csv(path, draw.joint_type, 50.0, folder / f'draw_{seed}.json')
-            rows.append({'plant': plant.__name__, 'draw': draw, 'doc': doc,
-                         'wall': time.perf_counter() - started})
+    tasks = [(plant.__name__, first_seed + i, tp.EFFECT_CHOICES[i % len(tp.EFFECT_CHOICES)],
+              folder) for plant, draws, first_seed in PLANTS for i in range(draws)]
+    # The draws are independent: one process per CPU. Spawned, not forked: the test process
+    # may hold rclpy's threads from earlier tests, and a fork copies their locks mid-use.
+    with multiprocessing.get_context('spawn').Pool(os.cpu_count() or 1) as pool:
+        rows = pool.map(run_draw, tasks, chunksize=1)
     print_table(rows)
     return rows
 
