@@ -46,7 +46,7 @@ from pathlib import Path
 
 from common import cpu_seconds, describe_machine
 
-from exo_has_runtime.testing.hosts import OPERATOR, ROBOT, VirtualHosts, discovery_environment
+from exo_has_runtime.testing.hosts import OPERATOR, ROBOT, VirtualHosts
 from exo_has_runtime.testing.processes import NodeProcess
 
 JOINT = 'left_hip'
@@ -156,8 +156,8 @@ def run_pair(executor_kind: str, rate_hz: float, duration_s: float,
         if link == 'veth':
             hosts = stack.enter_context(VirtualHosts())
             netns = hosts.hosts[ROBOT].netns
-            plant_env |= discovery_environment(ROBOT)
-            client_env |= discovery_environment(OPERATOR)
+            plant_env |= hosts.hosts[ROBOT].environment
+            client_env |= hosts.hosts[OPERATOR].environment
             prefix = ['nsenter', f'--net={hosts.hosts[OPERATOR].netns}']
         return _run_pair(executor_kind, rate_hz, duration_s, plant_env, client_env, prefix,
                          netns)

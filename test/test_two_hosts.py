@@ -21,7 +21,6 @@ What is to hold, and why:
 
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,9 +33,7 @@ from exo_has_control.analysis import SessionData, joint_angles, linkages, read_s
 from exo_has_control.session import Session, SessionConfig
 from exo_has_msgs.msg import SafetyEvent
 from exo_has_runtime.bag import bag_summary
-from exo_has_runtime.errors import HostsUnavailableError
 from exo_has_runtime.joints import JOINT_NAMES
-from exo_has_runtime.testing.hosts import check_privileges
 from exo_has_runtime.topics import has_state_topic
 
 RATE = 200.0
@@ -47,15 +44,6 @@ HOLD_BOUND = STALE_S + 0.25  # s: plus a check period, the event's way and a sch
 RECOVERY_BOUND = 3.0  # s: Fast DDS resends its announcements; a lease (20 s) never expired
 HELD_MOTION = 2.0  # deg: how far a held joint may drift (pressure settling, load)
 HIP_WALK_PEAK, KNEE_PEAK = 8.0, 25.0  # deg, as test_session.py
-
-
-def _hosts_or_skip() -> None:
-    try:
-        check_privileges(losses=True)
-    except HostsUnavailableError as exc:
-        if os.environ.get('CI'):
-            raise  # CI runs as root with iptables: there this must run
-        pytest.skip(str(exc))
 
 
 @dataclass
@@ -69,8 +57,7 @@ class Run:
 
 
 @pytest.fixture(scope='module')
-def run(tmp_path_factory) -> Run:
-    _hosts_or_skip()
+def run(tmp_path_factory, virtual_hosts_available) -> Run:
     session = Session(SessionConfig(('walk',), (WALK,), RATE, hosts=2),
                       tmp_path_factory.mktemp('two_hosts'))
     marks: dict[str, float] = {}

@@ -35,7 +35,7 @@ from exo_has_control.errors import DomainInUseError
 from exo_has_driver.hardware.bus import random_multicast_group
 from exo_has_runtime.container import ComponentSpec
 from exo_has_runtime.joints import JOINT_NAMES, joint_type_of
-from exo_has_runtime.testing.hosts import OPERATOR, ROBOT, VirtualHosts, discovery_environment
+from exo_has_runtime.testing.hosts import OPERATOR, ROBOT, VirtualHosts
 from exo_has_runtime.testing.processes import NodeProcess
 from exo_has_runtime.topics import (
     DIAGNOSTICS_TOPIC,
@@ -245,17 +245,17 @@ def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
     operator = OPERATOR if config.hosts == 2 else ROBOT
     if config.record and bag is not None:
         topics = ','.join(f"'{t}'" for t in recorded_topics(config.loads))
-        specs.append(NodeSpec('recorder', 'exo_has_runtime.recorder', (
-            '--ros-args', '-p', f'output:={bag}', '-p', f'topics:=[{topics}]',
-            *config.node_arguments.get('recorder', ())),
-            ready=r'recording', stage=0, node_class='exo_has_runtime.recorder:Recorder',
-            host=operator))
+
+        def recorder(name: str, output: Path, extra: tuple[str, ...], host: str) -> NodeSpec:
+            return NodeSpec(name, 'exo_has_runtime.recorder', (
+                '--ros-args', '-r', f'__node:={name}', '-p', f'output:={output}', '-p',
+                f'topics:=[{topics}]', *extra), ready=r'recording', stage=0,
+                node_class='exo_has_runtime.recorder:Recorder', host=host)
+        specs.append(recorder('recorder', bag, config.node_arguments.get('recorder', ()),
+                              operator))
         if config.hosts == 2:
             # The robot keeps its own record: a partition costs the operator's bag, not this.
-            specs.append(NodeSpec('robot_recorder', 'exo_has_runtime.recorder', (
-                '--ros-args', '-r', '__node:=robot_recorder', '-p',
-                f'output:={robot_bag_of(bag)}', '-p', f'topics:=[{topics}]'),
-                ready=r'recording', stage=0, node_class='exo_has_runtime.recorder:Recorder'))
+            specs.append(recorder('robot_recorder', robot_bag_of(bag), (), ROBOT))
     if config.hardware == 'can':
         channel = config.can_channel or random_multicast_group()
         specs.append(NodeSpec('can_devices', 'exo_has_driver.devices.main', (
@@ -434,10 +434,7 @@ class Session:
             for stage in sorted({spec.stage for spec in specs}):
                 group = [spec for spec in specs if spec.stage == stage]
                 for spec in group:
-                    env, netns = self.env, None
-                    if self.hosts is not None:
-                        host = self.hosts.hosts[spec.host]
-                        env, netns = {**env, **discovery_environment(host.name)}, host.netns
+                    env, netns = self._placement(spec.host)
                     self.processes[spec.name] = NodeProcess(
                         spec.module, spec.arguments, env=env,
                         log_path=self.logs / f'{spec.name}.log', stdin=spec.stdin, netns=netns)
@@ -456,6 +453,13 @@ class Session:
         except BaseException:
             self.stop()
             raise
+
+    def _placement(self, host: str) -> tuple[dict[str, str], str | None]:
+        """Environment and network namespace of a process on a host (None: this one)."""
+        if self.hosts is None:
+            return self.env, None
+        placed = self.hosts.hosts[host]
+        return {**self.env, **placed.environment}, placed.netns
 
     def _wait_for_recording(self, name: str, topics: int) -> None:
         recorder = self.processes[name]
@@ -537,10 +541,7 @@ class Session:
             If the reset could not be sent within ``timeout`` seconds (no watchdog reached).
 
         """
-        env, netns = self.env, None
-        if self.hosts is not None:
-            host = self.hosts.hosts[OPERATOR]
-            env, netns = {**env, **discovery_environment(host.name)}, host.netns
+        env, netns = self._placement(OPERATOR)
         sender = NodeProcess('exo_has_runtime.testing.peers', (
             'publish', f'/{SAFETY_RESET_TOPIC}=std_msgs/msg/Empty={{}}', '--count', '1',
             '--duration', f'{timeout:g}', '--name', 'operator_reset'), env=env, netns=netns,
@@ -551,7 +552,7 @@ class Session:
             sender.stop()
             msg = f'no reset sent within {timeout:g} s: {sender.output}'
             raise TimeoutError(msg) from None
-        if code != 0 or 'ACKED' not in sender.output.replace('NOT ACKED', ''):
+        if code != 0 or not re.search(r'^ACKED$', sender.output, re.MULTILINE):
             msg = (f'the reset was not acknowledged within {timeout:g} s (exit code {code}; '
                    f'no watchdog reached?): {sender.output}')
             raise TimeoutError(msg)

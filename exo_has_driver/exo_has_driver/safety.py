@@ -436,10 +436,8 @@ class Watchdog:
             its publisher present; nothing while the hold lasts.
 
         """
-        if self._reference_time is None or self._hold is not None:
-            return []
-        age = t - self._reference_time
-        if age <= self._reference_timeout:
+        age = self._reference_age(t)
+        if age is None or self._hold is not None or age <= self._reference_timeout:
             return []
         if not source_present():
             self._reference_time = None
@@ -450,6 +448,10 @@ class Watchdog:
                            f'{self._reference_timeout:.3f} s) while its publisher is in the '
                            'graph: every joint holds until a reset')
         return [self._hold]
+
+    def _reference_age(self, t: float) -> float | None:
+        """Age [s] of the newest joint reference at t [s]; None before one (or withdrawn)."""
+        return None if self._reference_time is None else t - self._reference_time
 
     def on_sources(self, joint: str, topic: str, publishers: Sequence[str]) -> list[Event]:
         """Take the publishers the ROS graph shows on one of a joint's topics.
@@ -525,9 +527,8 @@ class Watchdog:
 
         """
         holding = self._holding(t) if self._latch.latched else []
-        if self._hold is not None and self._reference_time is not None \
-                and t - self._reference_time > self._reference_timeout:
-            age = t - self._reference_time
+        age = self._reference_age(t)
+        if self._hold is not None and age is not None and age > self._reference_timeout:
             holding.append(Condition(('', SafetyKind.STALE_REFERENCE), '',
                                      SafetyKind.STALE_REFERENCE, age, self._reference_timeout,
                                      f'no joint reference for {age:.3f} s'))

@@ -34,7 +34,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.subscription import Subscription
 
 from exo_has_runtime.bag import BagWriter, offered_qos
-from exo_has_runtime.bags.gaps import GapFinder
+from exo_has_runtime.bags.gaps import Gap, GapFinder
 from exo_has_runtime.errors import BagError
 from exo_has_runtime.execution import run_node
 from exo_has_runtime.message_types import message_class
@@ -169,7 +169,7 @@ class Recorder(Node):
             for taken in batch:
                 write(taken.topic, taken.received_ns, taken.data)
                 if (gap := gap_after(taken.topic, taken.received_ns)) is not None:
-                    self.get_logger().warning(f'gap in the recording: {gap.describe()}')
+                    self._log_gap(gap)
 
     def _offers(self, topic: str) -> list[Any]:
         return [info.qos_profile for info in self.get_publishers_info_by_topic(topic)]
@@ -186,8 +186,11 @@ class Recorder(Node):
             now_ns = wall_ns()
             write(topic, now_ns, data)
             if (gap := self._gaps.take(topic, now_ns)) is not None:
-                self.get_logger().warning(f'gap in the recording: {gap.describe()}')
+                self._log_gap(gap)
         return on_message
+
+    def _log_gap(self, gap: Gap) -> None:
+        self.get_logger().warning(f'gap in the recording: {gap.describe()}')
 
     def _give_up(self, topic: str, reason: str) -> None:
         self._given_up.add(topic)

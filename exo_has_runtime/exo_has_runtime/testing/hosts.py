@@ -84,16 +84,16 @@ class Host:
     address: str
     netns: str
 
+    @property
+    def environment(self) -> dict[str, str]:
+        """The ROS discovery settings of this host's nodes, as on each of two machines.
 
-def discovery_environment(host: str) -> dict[str, str]:
-    """Return the ROS discovery settings of a host's nodes, as on each of two machines.
-
-    Multicast discovery on the link's subnet, and the other host as a static peer, so that
-    the two find each other where a network does not carry multicast (bench/README.md, "Two
-    hosts").
-    """
-    other = OPERATOR if host == ROBOT else ROBOT
-    return {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET', 'ROS_STATIC_PEERS': ADDRESSES[other]}
+        Multicast discovery on the link's subnet, and the other host as a static peer, so
+        that the two find each other where a network does not carry multicast
+        (bench/README.md, "Two hosts").
+        """
+        other = OPERATOR if self.name == ROBOT else ROBOT
+        return {'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET', 'ROS_STATIC_PEERS': ADDRESSES[other]}
 
 
 class VirtualHosts:
