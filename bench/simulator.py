@@ -8,7 +8,7 @@
    speed-up over the cheapest solve_ivp run at least as accurate as the fast simulator at its
    default tolerance.
 
-Usage: ``.venv/bin/python bench/simulator.py [--repeats N] [--out FILE]``.
+Usage: ``.venv/bin/python bench/simulator.py [--repeats N] [--out FILE] [--walk-only]``.
 """
 
 from __future__ import annotations
@@ -117,12 +117,16 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--repeats', type=int, default=5, help='timed runs per case (5)')
     parser.add_argument('--out', type=Path, help='write the results as JSON here')
+    parser.add_argument('--walk-only', action='store_true',
+                        help='time the closed-loop walk only (for farm-bench --vs)')
     args = parser.parse_args()
     walk = closed_loop_walk(args.repeats)
     print(f'4 joints, {walk["duration_s"]:.0f} s closed-loop walking at 1 kHz: '
           f'{walk["wall_s"]:.3f} s wall (median of {args.repeats}), '
           f'{walk["real_time_factor"]:.0f}x real time, tracking rms '
           f'{walk["tracking_rms_mm"]:.2f} mm', flush=True)
+    if args.walk_only:
+        return 0
     accuracy = accuracy_against_time(max(1, args.repeats // 2))
     for row in accuracy['rows']:
         print(f'{row["solver"]:<18} rtol {row["rtol"]:<7g} max error '

@@ -123,6 +123,7 @@ COMPOSITIONS: dict[str, dict[str, tuple[str, ...]]] = {
     'plants': COMPOSITION,
     'plants,control': {**COMPOSITION, 'control': ('pd_controller', 'gait_publisher')},
     'plants+control': {'robot': (*COMPOSITION['plants'], 'pd_controller', 'gait_publisher')},
+    'plants+controller': {'robot': (*COMPOSITION['plants'], 'pd_controller')},
     'plants+control,observers': {
         'robot': (*COMPOSITION['plants'], 'pd_controller', 'gait_publisher'),
         'observers': ('watchdog', 'recorder')},

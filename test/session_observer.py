@@ -137,18 +137,23 @@ def read_so_far(running: Session) -> SessionData:
 
 
 def outside_stalls(data: SessionData, rate: float, gap: float = 0.05,
-                   settle: float = 1.0) -> tuple[SessionData, float]:
+                   settle: float = 1.0) -> tuple[SessionData, float, list[str]]:
     """Return the session without the states of the stretches a process stall disturbed.
 
     A stall of any node process (the plants, the controller, the gait publisher: issue 11,
     bench/README.md "Stalls") shows as a gap of over ``gap`` seconds in its stream's stamps;
-    the states from its start to ``settle`` seconds after it are left out, and the seconds
-    left out (at ``rate`` [Hz]) are returned with the data.
+    the states from its start to ``settle`` seconds after it are left out. Returned with the
+    data: the seconds left out (at ``rate`` [Hz]) and each stall, described for a failure's
+    message.
     """
-    streams = [data.reference_t] + [series['t'] for series in data.states.values()] \
-        + [series['t'] for series in data.commands.values()]
-    windows = [(t[i], t[i + 1] + settle) for t in streams if len(t) > 1
-               for i in np.flatnonzero(np.diff(t) > gap)]
+    streams = {'reference': data.reference_t}
+    streams.update({f'{joint} state': series['t'] for joint, series in data.states.items()})
+    streams.update({f'{joint} command': s['t'] for joint, s in data.commands.items()})
+    windows, stalls = [], []
+    for name, t in streams.items():
+        for i in np.flatnonzero(np.diff(t) > gap) if len(t) > 1 else ():
+            windows.append((t[i], t[i + 1] + settle))
+            stalls.append(f'{name} at {t[i] - data.start:.2f} s for {t[i + 1] - t[i]:.3f} s')
     states, left_out = {}, 0.0
     for joint, series in data.states.items():
         keep = np.ones(len(series['t']), dtype=bool)
@@ -156,4 +161,4 @@ def outside_stalls(data: SessionData, rate: float, gap: float = 0.05,
             keep &= ~((series['t'] >= start) & (series['t'] <= end))
         states[joint] = {name: values[keep] for name, values in series.items()}
         left_out = max(left_out, float(np.sum(~keep)) / rate)
-    return replace(data, states=states), left_out
+    return replace(data, states=states), left_out, stalls

@@ -91,7 +91,7 @@ def window(data: SessionData, start: float, end: float) -> list:
 
 def assert_tracks(data: SessionData, start: float, end: float) -> None:
     """Assert the joints track between two system times [s], outside process stalls."""
-    steady, _ = outside_stalls(data, RATE)
+    steady, _, _ = outside_stalls(data, RATE)
     rows = window(steady, start, end)
     assert len(rows) == len(JOINT_NAMES)
     for row in rows:

@@ -22,10 +22,18 @@ handler would shut the context down first.
 
 ``EXO_HAS_EXECUTOR=single`` runs a node on ``SingleThreadedExecutor`` instead: the benchmarks
 compare the two side by side with it.
+
+Once its nodes are built, a process moves every object it has made so far (the imports of
+rclpy, numpy, scipy and numba, the nodes themselves) out of reach of Python's cyclic garbage
+collector (``gc.freeze``). A full collection otherwise walks all of them with the GIL held: some
+50 ms on this machine, a stall of every thread of the process, which showed as gaps of 30 to
+90 ms in the plants' and the controller's streams (bench/stalls.py, bench/README.md "Stalls").
+``EXO_HAS_GC_FREEZE=0`` leaves the collector as Python sets it, for that comparison.
 """
 
 from __future__ import annotations
 
+import gc
 import os
 import signal
 import sys
@@ -206,6 +214,7 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
             except STARTUP_ERRORS as exc:
                 rclpy.logging.get_logger(name).fatal(f'cannot start: {exc}')
                 raise SystemExit(1) from None
+            freeze_startup_objects()
             spin(nodes, stop=stop)
             # The executor is shut down: destroy the nodes while the context is still valid.
             for node in reversed(nodes):
@@ -217,6 +226,20 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
         for node in reversed(nodes):
             node.destroy_node()
         try_shutdown()
+
+
+def freeze_startup_objects() -> bool:
+    """Keep what the process made so far out of every later garbage collection.
+
+    Collects once, then freezes the survivors (``gc.freeze``): later collections, full ones
+    included, walk only the objects made afterwards. Not where ``EXO_HAS_GC_FREEZE`` is ``0``.
+    Returns whether it froze.
+    """
+    if os.environ.get('EXO_HAS_GC_FREEZE', '1') == '0':
+        return False
+    gc.collect()
+    gc.freeze()
+    return True
 
 
 def run_node(factory: Callable[[], Node], args: Sequence[str] | None = None,

@@ -107,3 +107,29 @@ def test_a_burst_of_stop_signals_still_ends_a_node_cleanly():
                 plant.process.send_signal(stop_signal)
         assert plant.wait(timeout_s=5) == 0, plant.output
         assert 'Traceback' not in plant.output
+
+
+def test_a_node_process_keeps_its_start_up_objects_out_of_later_collections():
+    # A full collection walking every import stalls a node for some 50 ms (bench/stalls.py).
+    code = textwrap.dedent("""
+        import gc
+        from exo_has_runtime.execution import freeze_startup_objects
+        assert freeze_startup_objects()
+        print(gc.get_freeze_count(), len(gc.get_objects()))
+    """)
+    frozen, collectable = map(int, subprocess.run(
+        [sys.executable, '-c', code], capture_output=True, text=True, check=True,
+        timeout=60).stdout.split())
+    assert frozen > 10_000  # rclpy and numpy alone make more
+    assert collectable < 0.01 * frozen
+
+
+def test_the_start_up_objects_are_left_to_the_collector_where_asked(monkeypatch):
+    import gc
+
+    from exo_has_runtime.execution import freeze_startup_objects
+
+    monkeypatch.setenv('EXO_HAS_GC_FREEZE', '0')
+    before = gc.get_freeze_count()
+    assert not freeze_startup_objects()
+    assert gc.get_freeze_count() == before

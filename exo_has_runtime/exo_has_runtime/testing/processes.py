@@ -18,6 +18,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import weakref
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
@@ -57,6 +58,10 @@ class NodeProcess:
         else:
             self._log = Path(log_path).open('wb')
         self.log_path = Path(self._log.name)
+        if log_path is None:
+            # Readable (``output``) for as long as this object lives, then removed: a test
+            # suite starts thousands of processes and would leave each one's log behind.
+            weakref.finalize(self, self.log_path.unlink, missing_ok=True)
         self.process = subprocess.Popen(
             [sys.executable, '-u', '-m', 'exo_has_runtime.testing.tether', str(os.getpid()),
              *(('--netns', netns) if netns is not None else ()), module, *args],

@@ -28,3 +28,23 @@ def test_sending_without_a_pipe_or_after_the_end_names_the_problem(tmp_path) -> 
         process.wait()
         with pytest.raises(RuntimeError, match='has ended'):
             process.send('{}')
+
+
+def test_a_temporary_log_is_read_after_the_end_and_removed_with_its_process() -> None:
+    import gc
+
+    process = NodeProcess('json.tool', ['--help'])
+    assert process.wait() == 0
+    process.stop()
+    assert 'usage' in process.output
+    log = process.log_path
+    del process
+    gc.collect()
+    assert not log.exists()
+
+
+def test_a_log_the_caller_named_is_kept(tmp_path) -> None:
+    with NodeProcess('json.tool', ['--help'], log_path=tmp_path / 'kept.log') as process:
+        process.wait()
+    del process
+    assert (tmp_path / 'kept.log').read_text().startswith('usage')

@@ -1,0 +1,178 @@
+"""Where the stalls of a session come from: the node process, the CPU share, or the machine.
+
+A *stall* is a gap of over ``--gap`` seconds in the header stamps of one of a session's
+streams (a plant's states, the controller's commands per joint, the gait reference): the
+process that stamps them stood still. Beside each session run two plain Python watchers with
+no ROS in them, each sleeping 1 ms at a time and noting every wake-up later than ``--gap``:
+
+- ``fifo`` at SCHED_FIFO priority 60 (above the nodes): no task of this machine can keep it
+  from running, so its gaps are the machine's own (the hypervisor, the kernel);
+- ``normal`` at the nodes' own priority: its gaps also count the time the nodes' load kept it
+  off both CPUs.
+
+A stream stall that overlaps a ``fifo`` gap is the machine's; one that overlaps only a
+``normal`` gap is CPU contention; one that overlaps neither is the node process's own (its
+GIL, a blocking call in DDS). The watchers also sample the machine's steal time.
+
+``--gc-freeze on off`` runs the sessions with and without the nodes' freezing of their
+start-up objects (``EXO_HAS_GC_FREEZE``, :func:`exo_has_runtime.execution.freeze_startup_objects`),
+taking turns.
+
+Run (in ``./run shell``, as root): ``python bench/stalls.py --sessions 5``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from common import write_results
+
+from exo_has_control.analysis import read_session
+from exo_has_control.session import Session, SessionConfig
+
+WATCH_PRIORITY = 60  # SCHED_FIFO: above the plants' real-time priority option (50)
+
+
+def watch(gap_s: float, duration_s: float, fifo: bool) -> dict[str, object]:
+    """Sleep 1 ms at a time for ``duration_s``; every wake-up later than ``gap_s`` [s].
+
+    Returns the gaps as ``[start, length]`` pairs (wall clock [s]) and the steal and total
+    CPU ticks of the machine over the run.
+    """
+    if fifo:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(WATCH_PRIORITY))
+    steal0, total0 = _steal_ticks()
+    gaps: list[list[float]] = []
+    end = time.time() + duration_s
+    before = time.time()
+    while before < end:
+        time.sleep(0.001)
+        now = time.time()
+        if now - before > gap_s:
+            gaps.append([before, now - before])
+        before = now
+    steal1, total1 = _steal_ticks()
+    return {'gaps': gaps, 'steal_ticks': steal1 - steal0, 'total_ticks': total1 - total0}
+
+
+def _steal_ticks() -> tuple[int, int]:
+    """Steal and total CPU ticks of the whole machine, from /proc/stat."""
+    fields = [int(v) for v in Path('/proc/stat').read_text().split('\n', 1)[0].split()[1:]]
+    return fields[7], sum(fields)
+
+
+def stream_stalls(bag: Path, gap_s: float) -> list[tuple[str, float, float]]:
+    """Every gap of over ``gap_s`` [s] in a session's stamped streams: (stream, start, length)."""
+    data = read_session(bag)
+    streams = {'reference': data.reference_t}
+    streams.update({f'{joint} state': s['t'] for joint, s in data.states.items()})
+    streams.update({f'{joint} command': s['t'] for joint, s in data.commands.items()})
+    stalls = []
+    for name, stamps in streams.items():
+        steps = np.diff(stamps)
+        stalls += [(name, float(stamps[i]), float(steps[i]))
+                   for i in np.flatnonzero(steps > gap_s)]
+    return sorted(stalls, key=lambda s: s[1])
+
+
+def _overlaps(start: float, length: float, gaps: list[list[float]], slack: float) -> bool:
+    return any(g0 < start + length + slack and start < g0 + g1 + slack for g0, g1 in gaps)
+
+
+def run(folder: Path, gap_s: float, durations: tuple[float, float],
+        gc_freeze: str = 'on') -> dict[str, object]:
+    """One walking and squatting session with the two watchers; its stalls, classified."""
+    config = SessionConfig(('walk', 'squat'), durations, 200.0)
+    session = Session(config, folder, env={'EXO_HAS_GC_FREEZE': '1' if gc_freeze == 'on' else '0'})
+    session.start(show=lambda line: None)
+    assert session.started_at is not None
+    span = session.started_at - time.monotonic() + sum(durations) + 1.0
+    watchers = {
+        kind: subprocess.Popen(
+            [sys.executable, __file__, '--watch', kind, '--gap', f'{gap_s}',
+             '--duration', f'{span:.2f}'], stdout=subprocess.PIPE, text=True)
+        for kind in ('fifo', 'normal')}
+    try:
+        time.sleep(span + 0.5)
+    finally:
+        session.stop()
+        seen = {kind: json.loads(p.communicate(timeout=30.0)[0]) for kind, p in watchers.items()}
+    assert session.bag is not None
+    stalls = []
+    for name, start, length in stream_stalls(session.bag, gap_s):
+        # A stream's gap spans from the tick before the stall to the one after it.
+        if _overlaps(start, length, seen['fifo']['gaps'], 0.005):
+            cause = 'machine'
+        elif _overlaps(start, length, seen['normal']['gaps'], 0.005):
+            cause = 'contention'
+        else:
+            cause = 'process'
+        stalls.append({'stream': name, 'start': start, 'length_s': round(length, 3),
+                       'cause': cause})
+    return {'gc_freeze': gc_freeze, 'stalls': stalls, 'watchers': seen}
+
+
+def main() -> None:
+    """Parse the arguments; run the sessions (or one watcher) and write the results."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument('--sessions', type=int, default=5)
+    parser.add_argument('--gap', type=float, default=0.05, help='a stall is longer [s]')
+    parser.add_argument('--durations', type=float, nargs=2, default=(8.0, 8.0),
+                        metavar=('WALK', 'SQUAT'), help='trial lengths [s]')
+    parser.add_argument('--gc-freeze', nargs='+', choices=('on', 'off'), default=['on'],
+                        help='nodes freeze their start-up objects (EXO_HAS_GC_FREEZE), in turn')
+    parser.add_argument('--results', default='stalls', help='results file name')
+    parser.add_argument('--watch', choices=('fifo', 'normal'), help=argparse.SUPPRESS)
+    parser.add_argument('--duration', type=float, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.watch:
+        print(json.dumps(watch(args.gap, args.duration, args.watch == 'fifo')))
+        return
+    if os.geteuid() != 0:
+        parser.error('run as root: the machine watcher needs SCHED_FIFO')
+    sessions = []
+    with tempfile.TemporaryDirectory() as folder:
+        for index in range(args.sessions):
+            for freeze in args.gc_freeze:
+                sessions.append(run(Path(folder) / f's{index}{freeze}', args.gap,
+                                    tuple(args.durations), freeze))
+    lines = [f'{args.sessions} sessions, walk {args.durations[0]:g} s + squat '
+             f'{args.durations[1]:g} s at 200 Hz; a stall is a gap over {args.gap * 1e3:g} ms']
+    for index, result in enumerate(sessions):
+        w = result['watchers']
+        steal = 100.0 * w['normal']['steal_ticks'] / max(w['normal']['total_ticks'], 1)
+        lines.append(f'session {index} (gc freeze {result["gc_freeze"]}): steal '
+                     f'{steal:.1f} % of CPU time; watcher gaps '
+                     f'fifo {len(w["fifo"]["gaps"])} (max '
+                     f'{max((g[1] for g in w["fifo"]["gaps"]), default=0) * 1e3:.0f} ms), '
+                     f'normal {len(w["normal"]["gaps"])} (max '
+                     f'{max((g[1] for g in w["normal"]["gaps"]), default=0) * 1e3:.0f} ms)')
+        for stall in result['stalls']:
+            lines.append(f'  {stall["stream"]:<18} {stall["length_s"] * 1e3:6.0f} ms  '
+                         f'{stall["cause"]}')
+    for freeze in args.gc_freeze:
+        runs = [r for r in sessions if r['gc_freeze'] == freeze]
+        causes = [s['cause'] for r in runs for s in r['stalls']]
+        longest = [max((s['length_s'] for s in r['stalls']), default=0.0) for r in runs]
+        lines.append(f'gc freeze {freeze}: stream stalls by cause: ' + ', '.join(
+            f'{c} {causes.count(c)}' for c in ('machine', 'contention', 'process'))
+            + f'; per session: median {np.median([len(r["stalls"]) for r in runs]):g}, '
+            f'longest stall median {np.median(longest) * 1e3:.0f} ms')
+    write_results(args.results, {'command': ' '.join(sys.argv), 'gap_s': args.gap,
+                                 'durations_s': list(args.durations), 'sessions': sessions},
+                  lines)
+
+
+if __name__ == '__main__':
+    main()
