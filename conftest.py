@@ -8,11 +8,16 @@ from collections.abc import Iterator
 
 import pytest
 
+from exo_has_runtime.dds import configure_transport
+
 # Before any participant exists: child processes inherit both, so a test run never meets the
 # nodes of another run (or of a demo) on this machine, nor anything on the network.
 os.environ['ROS_DOMAIN_ID'] = str(random.SystemRandom().randint(100, 200))
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.pop('ROS_STATIC_PEERS', None)
+# The transport every exo_has process takes (UDP: exo_has_runtime.dds), here for the test process's
+# own participants and the processes it starts.
+configure_transport()
 
 
 @pytest.fixture

@@ -15,18 +15,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import random
 import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(100, 200)))
-os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-
-from common import describe_machine, trial_cpu_shares
+from common import describe_machine, on_this_machine, trial_cpu_shares
 
 from exo_has_control.analysis import read_session, tracking
 from exo_has_control.report import segments_of
@@ -61,6 +55,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--repeats', type=int, default=3)
     args = parser.parse_args()
+    on_this_machine()
     runs = []
     with tempfile.TemporaryDirectory() as scratch:
         for repeat in range(args.repeats):

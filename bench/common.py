@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import random
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -13,6 +14,20 @@ if TYPE_CHECKING:  # the scripts choose the backend before they import the sessi
     from exo_has_control.session import Session
 
 TICK = os.sysconf('SC_CLK_TCK')
+
+
+def on_this_machine() -> None:
+    """Run this benchmark and what it starts on a ROS domain of its own, on this machine only.
+
+    A random domain (100 to 200) and LOCALHOST discovery, unless the environment says
+    otherwise, with the DDS transport every exo_has process takes (exo_has_runtime.dds); call
+    before the first participant exists: the processes it starts inherit all three.
+    """
+    from exo_has_runtime.dds import configure_transport
+
+    os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(100, 200)))
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    configure_transport()
 
 #: Where each benchmark writes ``<name>.json`` and ``<name>.txt``.
 RESULTS = Path(__file__).resolve().parent / 'results'

@@ -14,15 +14,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import random
 import tempfile
 from pathlib import Path
 
-os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(100, 200)))
-os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-
-from common import describe_machine, write_results
+from common import describe_machine, on_this_machine, write_results
 
 from exo_has_control.analysis import rates, read_session, tracking
 from exo_has_control.demo import run
@@ -54,6 +49,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--sessions', type=int, default=10)
     args = parser.parse_args()
+    on_this_machine()
     config = SessionConfig()
     results = []
     with tempfile.TemporaryDirectory() as scratch:

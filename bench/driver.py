@@ -48,7 +48,6 @@ import bisect
 import json
 import math
 import os
-import random
 import re
 import subprocess
 import sys
@@ -58,14 +57,10 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-import numpy as np
-
-os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(100, 200)))
-os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-
 import can
+import numpy as np
 import rclpy
-from common import TICK, cpu_seconds, describe_machine
+from common import TICK, cpu_seconds, describe_machine, on_this_machine
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 
@@ -517,6 +512,7 @@ def main() -> None:
                         help='measured time per run [s], after start-up and a warm-up')
     parser.add_argument('--repeats', type=int, default=3, help='runs; medians are reported')
     args = parser.parse_args()
+    on_this_machine()
     load = Path('/proc/loadavg').read_text().split()[:3]
     rclpy.init()
     results = []

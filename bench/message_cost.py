@@ -13,15 +13,13 @@ Run (in ``./run shell``): ``python bench/message_cost.py`` (printout and
 from __future__ import annotations
 
 import json
-import os
-import random
 import subprocess
 import sys
 import threading
 import time
 from pathlib import Path
 
-from common import describe_machine, write_results
+from common import describe_machine, on_this_machine, write_results
 
 JOINTS = ('left_hip', 'left_knee', 'right_hip', 'right_knee')
 WARM_UP_S, WINDOW_S = 4.0, 10.0
@@ -91,8 +89,7 @@ def main() -> None:
     if len(sys.argv) > 1 and sys.argv[1] == '_side':
         side(sys.argv[2], sys.argv[3] == 'True')
         return
-    os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(100, 200)))
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    on_this_machine()
     runs = [{'raw': raw, **pair(raw)} for _ in range(3) for raw in (False, True)]
     lines = [f'bench/message_cost.py: {describe_machine()}']
     for raw in (False, True):

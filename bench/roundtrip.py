@@ -44,7 +44,7 @@ import time
 from contextlib import ExitStack
 from pathlib import Path
 
-from common import cpu_seconds, describe_machine
+from common import cpu_seconds, describe_machine, on_this_machine
 
 from exo_has_runtime.testing.hosts import OPERATOR, ROBOT, VirtualHosts
 from exo_has_runtime.testing.processes import NodeProcess
@@ -214,14 +214,12 @@ def main() -> int:
                              'hosts; root only), comma-separated, taking turns')
     parser.add_argument('--out', type=Path, help='write the results as JSON here')
     args = parser.parse_args()
+    on_this_machine()
     links = [link.strip() for link in args.links.split(',') if link.strip()]
     if set(links) - {'loopback', 'veth'}:
         parser.error(f'--links: loopback or veth, got {args.links}')
     executors = [kind.strip() for kind in args.executors.split(',') if kind.strip()]
     rates = [float(rate) for rate in args.rates.split(',') if rate.strip()]
-    # A domain of its own and this machine only, as the tests do.
-    os.environ.setdefault('ROS_DOMAIN_ID', str(150 + os.getpid() % 50))
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     runs = []
     for rate in rates:
         for repeat in range(args.repeats):

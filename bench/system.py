@@ -21,8 +21,12 @@ SCHED_FIFO at priority 10 (root only; see exo_has_runtime.realtime).
 With ``--variants defaults watchdog.batch=false,recorder.poll_period=0``, with the nodes'
 parameters as shipped and with those set (``node.parameter=value``, comma-separated).
 
+With ``--transports udp rmw``, with every node on UDP alone (what exo_has ships,
+exo_has_runtime.dds) and on rmw_fastrtps_cpp's LOCALHOST settings (shared memory and UDP).
+
 Run (in ``./run shell``): ``python bench/system.py [--duration 30] [--rates 200 1000]
-[--repeats 3] [--executors events single] [--realtime-priorities 0 10] [--variants ...]``.
+[--repeats 3] [--executors events single] [--realtime-priorities 0 10] [--variants ...]
+[--transports udp rmw]``.
 """
 
 from __future__ import annotations
@@ -31,7 +35,6 @@ import argparse
 import itertools
 import json
 import os
-import random
 import re
 import subprocess
 import sys
@@ -40,14 +43,11 @@ import time
 from pathlib import Path
 
 import numpy as np
-
-os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(100, 200)))
-os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-
-from common import describe_machine, trial_cpu_shares, write_results
+from common import describe_machine, on_this_machine, trial_cpu_shares, write_results
 
 from exo_has_control.analysis import read_session
 from exo_has_control.session import COMPOSITION, Session, SessionConfig
+from exo_has_runtime.dds import RMW_LOCALHOST_ENVIRONMENT
 from exo_has_runtime.joints import JOINT_NAMES
 
 
@@ -130,6 +130,10 @@ COMPOSITIONS: dict[str, dict[str, tuple[str, ...]]] = {
 }
 
 
+#: DDS transports of the nodes (``--transports``): as shipped (UDP alone, exo_has_runtime.dds),
+#: and rmw_fastrtps_cpp's LOCALHOST settings as they stand (shared memory and UDP).
+TRANSPORTS: dict[str, dict[str, str]] = {'udp': {}, 'rmw': RMW_LOCALHOST_ENVIRONMENT}
+
 #: The variant that keeps every node's parameters as shipped.
 DEFAULTS = 'defaults'
 
@@ -156,15 +160,16 @@ def node_arguments(variant: str) -> dict[str, tuple[str, ...]]:
 
 def run(rate: float, duration: float, folder: Path, priority: int = 0,
         executor: str = 'events', composition: str = 'plants',
-        variant: str = DEFAULTS) -> dict[str, object]:
+        variant: str = DEFAULTS, transport: str = 'udp') -> dict[str, object]:
     """One session at a rate, on an executor, the plants at a real-time priority; its figures.
 
-    ``variant``: node parameters set for this session (:func:`node_arguments`).
+    ``variant``: node parameters set for this session (:func:`node_arguments`); ``transport``:
+    the DDS transport of every node (:data:`TRANSPORTS`).
     """
     config = SessionConfig(('walk',), (duration,), rate, realtime_priority=priority,
                            composition=COMPOSITIONS[composition],
                            node_arguments=node_arguments(variant))
-    env = {'EXO_HAS_EXECUTOR': executor}
+    env = {'EXO_HAS_EXECUTOR': executor, **TRANSPORTS[transport]}
     session = Session(config, folder, env=env)
     session.start(show=lambda line: None)
     assert session.started_at is not None
@@ -189,6 +194,7 @@ def run(rate: float, duration: float, folder: Path, priority: int = 0,
         'fatal_events': fatal,
         'rate_hz': rate, 'duration_s': duration, 'realtime_priority': priority,
         'executor': executor, 'composition': composition, 'variant': variant,
+        'transport': transport,
         'cpu_percent_of_one_core': {k: round(v, 1) for k, v in shares.items()},
         'cpu_percent_total': round(sum(shares.values()), 1),
         'plant_periods': periods, 'plant_missed_periods': missed,
@@ -221,34 +227,43 @@ def main() -> None:
                         help='nodes sharing a process (separate: none), taking turns')
     parser.add_argument('--results', default='system',
                         help='name of the results files under bench/results/')
+    parser.add_argument('--transports', nargs='+', default=['udp'], choices=tuple(TRANSPORTS),
+                        help="the nodes' DDS transports to compare, taking turns")
     parser.add_argument('--variants', nargs='+', default=[DEFAULTS],
                         help='node parameters to compare, taking turns: defaults, or '
                              'node.parameter=value[,node.parameter=value...]')
     args = parser.parse_args()
+    on_this_machine()
     for variant in args.variants:
         node_arguments(variant)  # a malformed variant fails before any session runs
-    variants = list(itertools.product(args.executors, args.compositions, args.variants))
+    variants = list(itertools.product(args.executors, args.compositions, args.variants,
+                                      args.transports))
     results = []
     with tempfile.TemporaryDirectory() as scratch:
         for repeat in range(args.repeats):
             for rate in args.rates:
                 for priority in args.realtime_priorities:
-                    for index, (executor, composition, variant) in enumerate(variants):
+                    for index, (executor, composition, variant, transport) in enumerate(
+                            variants):
                         folder = Path(scratch) / (f'rate_{rate:g}_{priority}_{index}_{repeat}')
                         results.append(run(rate, args.duration, folder, priority, executor,
-                                           composition, variant))
+                                           composition, variant, transport))
                         print(json.dumps(results[-1], indent=1), flush=True)
     medians = {}
-    for rate, priority, (executor, composition, variant) in itertools.product(
+    for rate, priority, (executor, composition, variant, transport) in itertools.product(
             args.rates, args.realtime_priorities, variants):
         runs = [r for r in results if r['rate_hz'] == rate
                 and r['realtime_priority'] == priority and r['executor'] == executor
-                and r['composition'] == composition and r['variant'] == variant]
+                and r['composition'] == composition and r['variant'] == variant
+                and r['transport'] == transport]
         key = (f'{rate:g} Hz, {executor} executor, {composition} composed, {variant}, '
-               f'realtime priority {priority}')
+               f'{transport} transport, realtime priority {priority}')
         medians[key] = {
             name: float(np.median([r[name] for r in runs]))
             for name in ('cpu_percent_total', 'missed_percent', 'late_percent')}
+        medians[key]['worst_lateness_ms'] = float(
+            np.median([r['plant_lateness_ms']['max_ms'] for r in runs]))
+        medians[key]['fatal_events'] = [r['fatal_events'] for r in runs]
         medians[key]['cpu_percent_per_node'] = {
             node: round(float(np.median([r['cpu_percent_of_one_core'].get(node, 0.0)
                                          for r in runs])), 1)
@@ -260,18 +275,21 @@ def main() -> None:
              f'--executors {" ".join(args.executors)} '
              f'--compositions {" ".join(args.compositions)} '
              f'--variants {" ".join(args.variants)} '
+             f'--transports {" ".join(args.transports)} '
              f'--realtime-priorities {" ".join(map(str, args.realtime_priorities))}: {machine}']
     for key, median in medians.items():
         lines.append(f'{key}, median of {args.repeats}: total CPU '
                      f"{median['cpu_percent_total']:.1f} % of one core (per node "
                      f"{median['cpu_percent_per_node']}), missed "
                      f"{median['missed_percent']:.3f} %, late {median['late_percent']:.3f} %, "
+                     f"worst plant lateness {median['worst_lateness_ms']:.1f} ms, fatal events "
+                     f"{median['fatal_events']}, "
                      f"idle probe missed {median['probe_missed_percent']:.3f} %")
     for r in results:
         ref, cmd = r['latency_ms']['reference_to_state'], r['latency_ms']['command_to_state']
         lines.append(
             f"{r['rate_hz']:g} Hz, {r['executor']} executor, {r['composition']} composed, "
-            f"{r['variant']}, realtime priority "
+            f"{r['variant']}, {r['transport']} transport, realtime priority "
             f"{r['realtime_priority']}: total CPU "
             f"{r['cpu_percent_total']} % of one core; plants "
             f"missed {r['plant_missed_periods']}/{r['plant_periods']} ({r['missed_percent']} %), "

@@ -34,15 +34,6 @@ STOPPED_SPEED = 2.0  # rad/s
 DRIVE_FAULT, HEARTBEAT_LOST, BUS_OFF, RESET = 8, 9, 10, 13
 FATAL = 3
 
-# Known failure, issue 11: on rclpy 7.1.6 this session does not yet hold. In 6 runs on a quiet
-# 2-core VM, 1 passed; the others had the hip walking peak at 7.1 deg, the driver stalled for
-# 1.4 s (its master's heartbeat lost at the drives, a stale command at the watchdog), or an
-# early knee tracking-error stop. The plant-node session (test_session.py) holds. Not strict:
-# a pass shows as XPASS, and the failures stay visible in the report.
-pytestmark = pytest.mark.xfail(
-    reason='issue 11: the CAN session does not yet hold on rclpy 7.1.6 (driver stalls, loop '
-           'delay)', strict=False)
-
 
 @pytest.fixture(scope='module')
 def session(tmp_path_factory):

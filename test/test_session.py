@@ -33,7 +33,7 @@ HIP_WALK_PEAK = 8.0  # deg: 3 to 5 in a quiet session; 7.3 in one whose commands
 # after a disturbance with no gap in any stream (a clean-clone CI run, issue 11)
 KNEE_PEAK = 25.0  # deg
 STOP_BOUND = 0.25  # s: overload to every joint commanded to stop (10 control periods + relief)
-STALE_BOUND = 0.8  # s: plants killed to the stale-state event (stale after 500 ms + scheduling)
+STALE_BOUND = 0.5  # s: plants killed to the stale-state event (stale after 200 ms + scheduling)
 
 
 @pytest.fixture(scope='module')

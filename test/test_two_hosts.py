@@ -39,7 +39,7 @@ from exo_has_runtime.topics import has_state_topic
 RATE = 200.0
 WALK = 26.0  # s
 CLEAN, LOSS_5, LOSS_20, CUT, RESTORE, RESET = 0.0, 5.0, 9.0, 13.0, 15.0, 16.0  # s, from start
-STALE_S = 0.5  # s: the session's stale limit (100 periods at 200 Hz), references included
+STALE_S = 0.2  # s: the session's stale limit (40 periods at 200 Hz), references included
 HOLD_BOUND = STALE_S + 0.25  # s: plus a check period, the event's way and a scheduling hiccup
 RECOVERY_BOUND = 3.0  # s: Fast DDS resends its announcements; a lease (20 s) never expired
 HELD_MOTION = 2.0  # deg: how far a held joint may drift (pressure settling, load)

@@ -176,10 +176,10 @@ class SessionConfig:
         Knees: 25 kg, the load of the paper's tracking tests (section 5.2), since the 50 kg
         design case (1155 N) drives the knees to the 18 MPa relief at the peaks of walking.
     stale_periods : int
-        Control periods without a state or command before the watchdog stops everything: 100
-        (500 ms at 200 Hz). On rclpy 7.1.6 with Fast DDS a node process here stands still for
-        about 0.2 to 0.35 s now and then (bench/README.md, "Stalls"; issue 11): at 40 periods
-        one demo session in ten stopped on such a stall.
+        Control periods without a state or command before the watchdog stops everything: 40
+        (200 ms at 200 Hz), some forty times the worst tick lateness of the session's nodes
+        (bench/system.py). It was 100 while Fast DDS's shared-memory transport stalled node
+        processes for 333 ms whenever a process joined the domain (exo_has_runtime.dds).
     hardware : str
         ``'plants'``: one plant node per joint. ``'can'``: the hardware driver on a simulated
         CAN bus (python-can's udp_multicast) with the simulated drives and sensor boards of
@@ -211,7 +211,7 @@ class SessionConfig:
     plant_arguments: dict[str, tuple[str, ...]] = field(default_factory=dict)
     node_arguments: dict[str, tuple[str, ...]] = field(default_factory=dict)
     start_delay: float = 2.0
-    stale_periods: int = 100
+    stale_periods: int = 40
     load_mass: dict[str, float] = field(default_factory=lambda: {'hip': 50.0, 'knee': 25.0})
     hardware: str = 'plants'
     can_channel: str = ''

@@ -10,6 +10,9 @@ import sys
 from collections.abc import Callable, Sequence
 from importlib.metadata import entry_points
 
+from exo_has_runtime.dds import configure_transport
+from exo_has_runtime.errors import DdsConfigurationError
+
 Command = Callable[[Sequence[str]], int]
 
 
@@ -31,6 +34,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         known = ', '.join(sorted(commands))
         print(f'exo-has: unknown subcommand {name!r}; known: {known}', file=sys.stderr)
         return 2
+    try:
+        # Before any participant of this process or of the nodes it starts (they inherit it).
+        warning = configure_transport()
+    except DdsConfigurationError as exc:
+        print(f'exo-has: {exc}', file=sys.stderr)
+        return 2
+    if warning:
+        print(f'exo-has: warning: {warning}', file=sys.stderr)
     function = commands[name]()
     return int(function(rest) or 0)
 

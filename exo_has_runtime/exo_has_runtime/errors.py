@@ -58,3 +58,7 @@ class ReplayError(RuntimeSeamError, ValueError):
 
 class HostsUnavailableError(RuntimeSeamError):
     """Two virtual hosts cannot be made here: not root, or a tool missing (the message says)."""
+
+
+class DdsConfigurationError(RuntimeSeamError, ValueError):
+    """DDS settings in the environment that a process cannot start with (the message names it)."""

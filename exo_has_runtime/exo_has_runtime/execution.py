@@ -54,6 +54,9 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import ok, try_shutdown
 
+from exo_has_runtime.dds import configure_transport
+from exo_has_runtime.errors import DdsConfigurationError
+
 #: Longest time one ``spin_once`` may block [s]: how long a shutdown may go unnoticed.
 SPIN_SLICE_S = 0.1
 
@@ -182,9 +185,11 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
 
     This is the body of every node's ``main()``, in the shape of ros2/examples: ``init``; try
     spin; except ``KeyboardInterrupt`` and ``ExternalShutdownException``; finally
-    ``destroy_node`` and ``try_shutdown``. Bad ROS arguments and a bad configuration (what
+    ``destroy_node`` and ``try_shutdown``. Before ``init`` the DDS transport is chosen
+    (:func:`exo_has_runtime.dds.configure_transport`: UDP, not Fast DDS's shared memory). Bad
+    DDS settings and bad ROS arguments and a bad configuration (what
     :data:`STARTUP_ERRORS` lists, raised by a constructor) are logged with the node's name and
-    end the process with exit code 2 and 1; an error raised while spinning is a bug and keeps
+    end the process with exit code 2, 2 and 1; an error raised while spinning is a bug and keeps
     its traceback.
 
     Parameters
@@ -198,6 +203,11 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
         Logger name for the errors before a node exists.
 
     """
+    try:
+        transport_warning = configure_transport()
+    except DdsConfigurationError as exc:
+        print(f'[FATAL] [{name}]: cannot start: {exc}', file=sys.stderr)
+        raise SystemExit(2) from None
     try:
         rclpy.init(args=list(sys.argv if args is None else args),
                    signal_handler_options=SignalHandlerOptions.NO)
@@ -214,6 +224,8 @@ def run_nodes(factories: Sequence[Callable[[], Node]], args: Sequence[str] | Non
             except STARTUP_ERRORS as exc:
                 rclpy.logging.get_logger(name).fatal(f'cannot start: {exc}')
                 raise SystemExit(1) from None
+            if transport_warning and nodes:
+                nodes[0].get_logger().warning(transport_warning)
             freeze_startup_objects()
             spin(nodes, stop=stop)
             # The executor is shut down: destroy the nodes while the context is still valid.
