@@ -88,6 +88,8 @@ def diagnose_draw(task: tuple[str, int, str, float | None, str, str]) -> dict[st
             'sensors': sensors, 'code': code, 'causes': doc.get('causes', []),
             'sizes': doc.get('sizes', {}), 'indistinguishable': doc.get('indistinguishable', []),
             'structure': doc.get('baseline_structure', []),
+            'limits': {effect: limit['limit']
+                       for effect, limit in doc.get('detection_limits', {}).items()},
             'wall_s': round(wall, 1)}
 
 
@@ -122,6 +124,18 @@ def null_ensemble(count: int, sensors: str, jobs: int) -> None:
                      f'{sum("second_order_motor" in r["structure"] for r in mine)}')
     lines += [f'  seed {r["seed"]} plant {r["plant"]} {r["joint"]} {r["excitation"]}: named '
               f'{", ".join(r["causes"])} {r["sizes"]}' for r in alarms]
+    lines.append("each record's own detection limits (exo_has_sim.diagnosis.limits), median and "
+                 'range over the draws that named nothing (None: not named at the strongest '
+                 'size tried):')
+    quiet = [r for r in results if not r['causes']]
+    for effect in LIMIT_SIZES:
+        for plant in PLANTS:
+            values = [r['limits'].get(effect) for r in quiet if r['plant'] == plant]
+            found = [v for v in values if v is not None]
+            spread = (f'median {float(np.median(found)):.3g}, {min(found):.3g} to '
+                      f'{max(found):.3g}' if found else 'none found')
+            lines.append(f'  {effect}, plant {plant}: {spread}; not named at the strongest '
+                         f'in {values.count(None)} of {len(values)}')
     write_results(f'detection_null_{sensors}', {'draws': results}, lines)
 
 

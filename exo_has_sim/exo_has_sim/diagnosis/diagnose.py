@@ -13,7 +13,9 @@
    baseline's alternative structures (a second-order motor loop) compete with the effects
    and, taken first, become the baseline;
 6. residual tests of the baseline and the extended model, and the signatures of the causes in
-   the baseline's residuals (:mod:`~exo_has_sim.diagnosis.residuals`).
+   the baseline's residuals (:mod:`~exo_has_sim.diagnosis.residuals`);
+7. the detection limit of every effect left out, in this record
+   (:mod:`~exo_has_sim.diagnosis.limits`).
 """
 
 from __future__ import annotations
@@ -46,6 +48,7 @@ from exo_has_sim.diagnosis.fitting import (
     output_weights,
     robust_rms,
 )
+from exo_has_sim.diagnosis.limits import DetectionLimit, detection_limits
 from exo_has_sim.diagnosis.plants import HasPlant, MassPlant, Plant, smooth
 from exo_has_sim.diagnosis.residuals import (
     CorrelationTest,
@@ -107,6 +110,9 @@ class Diagnosis:
     structure : tuple[str, ...]
         Alternative structures of the baseline the data called for
         (:attr:`~exo_has_sim.diagnosis.plants.Plant.alternatives`), in the baseline.
+    limits : dict[str, DetectionLimit]
+        Each effect left out of the extended model, with the smallest size of it this record
+        would have named (:mod:`~exo_has_sim.diagnosis.limits`).
 
     """
 
@@ -126,6 +132,7 @@ class Diagnosis:
     signatures: list[Signature] = field(default_factory=list)
     elapsed: float = 0.0
     structure: tuple[str, ...] = ()
+    limits: dict[str, DetectionLimit] = field(default_factory=dict)
 
     @property
     def cause(self) -> str:
@@ -208,6 +215,8 @@ class Diagnosis:
                 'method': self.transfer.method},
             'tests': {name: {'passed': test.passed, 'outside': test.outside,
                              'band': test.band} for name, test in self.tests.items()},
+            'detection_limits': {effect: limit.to_json()
+                                 for effect, limit in self.limits.items()},
             'data': {'source': m.source, 'plant': self.plant.kind, 'samples': m.samples,
                      'period': m.period, 'outputs': list(self.plant.outputs),
                      'horizon': self.windows.horizon * m.period,
@@ -326,9 +335,14 @@ def diagnose(plant: Plant, horizon: float = DEFAULT_HORIZON, burn_in: float = DE
         tests[f'{name}_cross'] = cross_correlation(position, inputs)
     everything = evaluate(plant, [baseline.values], windows.span, weights)[0]
     found = _signatures(plant, windows.span, everything)
+    say('detection limits of the effects left out')
+    limits = detection_limits(plant, extended, extended_validation, validation, weights,
+                              [e for e in chosen if e not in causes])
+    for limit in limits.values():
+        say(f'  {limit.sentence()}')
     return Diagnosis(plant, windows, weights, nominal, baseline, baseline_validation, steps,
                      causes, extended, extended_validation, transfer, transfer_fit, tests,
-                     found, time.perf_counter() - started, structure)
+                     found, time.perf_counter() - started, structure, limits)
 
 
 def _paper_transfer_function(plant: Plant,

@@ -49,6 +49,8 @@ class Effect:
         SI unit of the size.
     plants : tuple[str, ...]
         Plants it applies to.
+    grows_with_size : bool
+        Whether a larger size is a stronger effect (not so for a crack pressure).
 
     """
 
@@ -59,6 +61,7 @@ class Effect:
     size: str
     unit: str
     plants: tuple[str, ...]
+    grows_with_size: bool = True
 
 
 EFFECTS: dict[str, Effect] = {e.id: e for e in (
@@ -83,7 +86,7 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in (
     Effect('relief_valve', 'relief valve cracking below its setting',
            'the safety valve passes G_crack (min(p, p_relief) - p_crack) above p_crack',
            'a velocity residual that appears only above a pressure threshold',
-           'relief_crack_pressure', 'Pa', ('has',)),
+           'relief_crack_pressure', 'Pa', ('has',), grows_with_size=False),
     Effect('entrained_air', 'entrained air',
            'free air in the oil (volume fraction alpha at atmospheric pressure) compressed '
            'adiabatically: a bulk modulus that falls at low pressure',

@@ -48,6 +48,9 @@ def summary(diagnosis: Diagnosis) -> str:
     if diagnosis.transfer is not None:
         lines.append(f"paper's third-order transfer function: position fit "
                      f'{diagnosis.transfer_fit:.2f} %')
+    if diagnosis.limits:
+        lines.append('detection limits in these data (effects left out):')
+        lines.extend(f'  {limit.sentence()}' for limit in diagnosis.limits.values())
     return '\n'.join(lines)
 
 
@@ -127,6 +130,23 @@ def _markdown(diagnosis: Diagnosis, title: str | None) -> str:
         out.append('No effect of the library improves the validated prediction significantly: '
                    'the baseline with its re-estimated parameters explains the data as well '
                    'as any extension.')
+    if d.limits:
+        out += ['', '## What these data could miss: detection limits', '',
+                'Each effect left out, put into this record at growing sizes: its prediction '
+                "changes the model by so much, less what the model's own parameters take up, "
+                "and the selection's rules judge whether that change would have been named "
+                'against the residuals this record leaves (a second-order motor loop competing, '
+                'as in the selection). The limit is the weakest size from which every stronger '
+                'one tried is named.', '',
+                '| effect | limit | sizes tried (named marked *) |', '|---|---|---|']
+        for effect, limit in d.limits.items():
+            value = ('-' if limit.limit is None else
+                     f'{"below " if limit.below_range else ""}{limit.limit:.3g} {limit.unit}')
+            tried = ', '.join(f'{size:.3g}{"*" if named else ""}'
+                              for size, named in zip(limit.sizes, limit.named, strict=True))
+            out.append(f'| {effect_title(effect)} | {value} | {tried} |')
+        out.append('')
+        out.extend(f'- {limit.sentence()}.' for limit in d.limits.values())
     out += ['', '## How the model was compared', '',
             f'Each of {d.windows.span.count} windows starts from the measured state, is '
             f'simulated from the measured input for a burn-in of {data["burn_in"]:g} s, then '

@@ -1,0 +1,246 @@
+"""Detection limits of one record: how small an effect these data would still have named.
+
+A verdict of ``none`` says no effect of the library stood out; it does not say that none is
+there. What it can say is how large each effect would have had to be. For each effect left out
+of the final model, sizes from its screening grid (spread over a finer geometric ladder) are
+put into this record as it stands, the selection's own rules judging each:
+
+- the final model's validation residuals ``r0`` are what the data leave unexplained, noise,
+  mismatch and all; were the effect present at size s, the model would be left with
+  ``r0 + d``, where ``d`` is the change the effect makes to the weighted prediction less what
+  the model's own parameters absorb (to first order: ``d`` projected orthogonally to their
+  Jacobian on the validation windows, the variable projection that screening uses), while the
+  model extended with the effect would be left with ``r0``;
+- the size counts as named when that pair passes every rule of
+  :attr:`~exo_has_sim.diagnosis.selection.Score.significant` (score, t-test across the windows,
+  least gain), and when, besides, the effect beats each alternative structure of the baseline
+  not yet in the model (a second-order motor loop explains much of a transport delay): tried at
+  its grid, the structure's best residual ``r0 + d - P d_structure`` must also lose to ``r0`` by
+  the same rules, or a diagnosis would take the structure and report the effect as
+  indistinguishable.
+
+The limit is the smallest size from which every larger one tried is named: "friction under
+about 12 N cannot be told from noise and nominal error in data like these". It rests on the
+linearisation and on this record's residuals as the noise, and is checked against the limits
+that full diagnoses of simulated records measure (bench/detection.py, bench/README.md).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from exo_has_sim.diagnosis.compare import Span
+from exo_has_sim.diagnosis.effects import EFFECTS
+from exo_has_sim.diagnosis.fitting import JACOBIAN_STEP, Evaluation, Fit, FloatArray, evaluate
+from exo_has_sim.diagnosis.plants import Plant
+from exo_has_sim.diagnosis.selection import Score
+
+#: Sizes tried per effect: a geometric ladder from a quarter of the weakest size of its
+#: screening grid (a record may show less than the grid's weakest) to the strongest.
+LADDER = 11
+BELOW_GRID = 4.0
+
+
+@dataclass(frozen=True)
+class DetectionLimit:
+    """The smallest size of one effect that this record would have named.
+
+    Attributes
+    ----------
+    effect : str
+        Effect id.
+    unit : str
+        Unit of its size.
+    sizes : tuple[float, ...]
+        Sizes tried, weakest effect first.
+    named : tuple[bool, ...]
+        Whether each would have been named.
+    limit : float or None
+        The weakest size from which every stronger one tried is named; None when even the
+        strongest tried is not.
+
+    """
+
+    effect: str
+    unit: str
+    sizes: tuple[float, ...]
+    named: tuple[bool, ...]
+    limit: float | None
+
+    @property
+    def below_range(self) -> bool:
+        """Whether even the weakest size tried is named (the limit lies below the ladder)."""
+        return bool(self.named) and all(self.named)
+
+    def sentence(self) -> str:
+        """Say the limit in words, for the report and the summary."""
+        title = EFFECTS[self.effect].title if self.effect in EFFECTS else self.effect
+        weaker = 'under' if _grows_with_size(self.effect) else 'above'
+        if self.limit is None:
+            strongest = self.sizes[-1]
+            return (f'{title}: not named even at {strongest:.3g} {self.unit}, the strongest '
+                    'tried: data like these cannot show it')
+        if self.below_range:
+            return (f'{title}: named from {self.limit:.3g} {self.unit} (the weakest tried) '
+                    'and stronger')
+        return (f'{title} {weaker} about {self.limit:.3g} {self.unit} cannot be told from noise '
+                'and nominal error in these data')
+
+    def to_json(self) -> dict[str, object]:
+        """Return the limit as the JSON document carries it."""
+        return {'limit': self.limit, 'unit': self.unit, 'below_range': self.below_range,
+                'sizes': list(self.sizes), 'named': list(self.named)}
+
+
+def _grows_with_size(effect: str) -> bool:
+    return EFFECTS[effect].grows_with_size if effect in EFFECTS else True
+
+
+def ladder(grid: Sequence[float], effect: str, count: int = LADDER,
+           below: float = BELOW_GRID) -> tuple[float, ...]:
+    """Sizes to try for an effect, weakest first: ``count`` geometric steps.
+
+    From ``below`` times weaker than the grid's weakest to its strongest; a crack pressure,
+    whose effect weakens as it rises, is not taken past the grid's highest (the setting
+    bounds it).
+    """
+    low, high = min(grid), max(grid)
+    if _grows_with_size(effect):
+        low /= below
+    sizes = np.geomspace(low, high, count) if high > low else np.array([low])
+    ordered = sizes if _grows_with_size(effect) else sizes[::-1]
+    return tuple(float(s) for s in ordered)
+
+
+def _as_evaluation(residuals: FloatArray, weights: FloatArray) -> Evaluation:
+    """Return an evaluation whose weighted residuals are the given ones."""
+    return Evaluation(-residuals / weights, np.zeros_like(residuals), weights)
+
+
+def _judged(extended: FloatArray, reference: FloatArray, weights: FloatArray,
+            added: int) -> Score:
+    """Residuals ``extended`` against ``reference`` scored as the selection scores a model."""
+    return Score(('',), Fit({}, ()), _as_evaluation(extended, weights),
+                 _as_evaluation(reference, weights), added)
+
+
+def _named_over(change: FloatArray, r0: FloatArray, weights: FloatArray, added: int,
+                rivals: Sequence[tuple[FloatArray, int]]) -> bool:
+    """Whether an effect whose (projected) change is ``change`` would be named.
+
+    As forward selection does: the effect and each rival structure are scored against the
+    model without either; the better score goes first (a structure, on a tie: the effect is
+    then at best indistinguishable); a structure that goes first becomes the baseline, and the
+    effect must then be significant on top of it.
+    """
+    present = r0 + change
+    effect = _judged(r0, present, weights, added)
+    if not effect.significant:
+        return False
+    for rival, rival_added in rivals:
+        # The structure fitted to data holding the effect, to first order: it takes up the
+        # part of the change along its own.
+        scale = float(np.vdot(rival, change) / max(float(np.vdot(rival, rival)), 1e-300))
+        if scale <= 0.0:
+            continue
+        explained = present - min(scale, 1.0) * rival
+        structure = _judged(explained, present, weights, rival_added)
+        if structure.significant and structure.score <= effect.score \
+                and not _judged(r0, explained, weights, added).significant:
+            return False
+    return True
+
+
+class _Projection:
+    """What a model's own parameters absorb of a change of its prediction, to first order."""
+
+    def __init__(self, plant: Plant, model: Fit, span: Span, weights: FloatArray,
+                 base: FloatArray) -> None:
+        candidates = []
+        for parameter in model.free:
+            value = model.values[parameter.name]
+            moved = dict(model.values)
+            moved[parameter.name] = parameter.from_search(parameter.to_search(value)
+                                                          + JACOBIAN_STEP)
+            candidates.append(moved)
+        columns = [(e.predicted - base).ravel() for e in
+                   (evaluate(plant, candidates, span, weights) if candidates else [])]
+        columns = [c * np.broadcast_to(weights, base.shape).ravel() for c in columns
+                   if np.all(np.isfinite(c))]
+        self._basis: FloatArray | None = None
+        if columns:
+            q, r = np.linalg.qr(np.column_stack(columns))
+            keep = np.abs(np.diag(r)) > 1e-9 * max(float(np.max(np.abs(np.diag(r)))), 1e-300)
+            self._basis = q[:, keep]
+
+    def residual(self, change: FloatArray) -> FloatArray:
+        """Return the part of a weighted change the model's parameters cannot absorb."""
+        flat = change.ravel()
+        if self._basis is not None:
+            flat = flat - self._basis @ (self._basis.T @ flat)
+        return flat.reshape(change.shape)
+
+
+def detection_limits(plant: Plant, model: Fit, model_validation: Evaluation, span: Span,
+                     weights: FloatArray, effects: Sequence[str],
+                     structures: Mapping[str, Sequence[float]] | None = None,
+                     ) -> dict[str, DetectionLimit]:
+    """Return the detection limit of each effect in this record (module docstring).
+
+    Parameters
+    ----------
+    plant : Plant
+        The plant and its measurement.
+    model : Fit
+        The final model (the baseline, or it extended with the named causes).
+    model_validation : Evaluation
+        It on the validation windows ``span``.
+    span : Span
+        The validation windows.
+    weights : FloatArray
+        Output weights.
+    effects : Sequence[str]
+        Effects to judge (not in the model).
+    structures : Mapping[str, Sequence[float]] or None
+        Alternative structures not in the model, by name, with the values of their parameter
+        to try; default: the plant's alternatives at their grids.
+
+    """
+    if structures is None:
+        structures = {name: parameters[0].grid
+                      for name, parameters in plant.alternatives.items()
+                      if parameters[0].name not in model.values}
+    base = model_validation.predicted
+    r0 = model_validation.residuals
+    if not np.all(np.isfinite(r0)):
+        return {}
+    projection = _Projection(plant, model, span, weights, base)
+    rivals: list[tuple[FloatArray, int]] = []
+    for name, values in structures.items():
+        parameters = plant.effect_parameters(name)
+        tried = evaluate(plant, [model.values | {parameters[0].name: v} for v in values], span,
+                         weights)
+        changes = [projection.residual((e.predicted - base) * weights) for e in tried
+                   if np.all(np.isfinite(e.predicted))]
+        rivals.extend((change, len(parameters)) for change in changes)
+    out: dict[str, DetectionLimit] = {}
+    for effect in effects:
+        parameters = plant.effect_parameters(effect)
+        size = parameters[0]
+        sizes = ladder(size.grid or (size.start,), effect)
+        others = {p.name: p.start for p in parameters[1:]}
+        tried = evaluate(plant, [model.values | others | {size.name: s} for s in sizes], span,
+                         weights)
+        named = [bool(np.all(np.isfinite(e.predicted))) and _named_over(
+            projection.residual((e.predicted - base) * weights), r0, weights, len(parameters),
+            rivals) for e in tried]
+        limit = None
+        for index in range(len(sizes)):
+            if all(named[index:]):
+                limit = sizes[index]
+                break
+        out[effect] = DetectionLimit(effect, size.unit, sizes, tuple(named), limit)
+    return out

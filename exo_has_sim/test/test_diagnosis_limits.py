@@ -1,0 +1,75 @@
+"""Detection limits of a record (exo_has_sim.diagnosis.limits), judged by the selection's rules."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from exo_has_sim.diagnosis.limits import DetectionLimit, _named_over, ladder
+
+WINDOWS, HORIZON, OUTPUTS = 40, 100, 2
+WEIGHTS = np.ones(OUTPUTS)
+
+
+def noise(seed: int = 1) -> np.ndarray:
+    return np.random.default_rng(seed).normal(size=(WINDOWS, HORIZON, OUTPUTS))
+
+
+def change_of(amplitude: float, seed: int = 2) -> np.ndarray:
+    """Return a smooth change of the prediction in every window, as an effect makes."""
+    rng = np.random.default_rng(seed)
+    shape = np.sin(np.linspace(0.0, 3.0 * np.pi, HORIZON))[None, :, None]
+    return amplitude * shape * rng.uniform(0.5, 1.5, size=(WINDOWS, 1, OUTPUTS))
+
+
+def test_a_change_well_above_the_noise_is_named_and_one_within_it_is_not():
+    r0 = noise()
+    assert _named_over(change_of(1.0), r0, WEIGHTS, 1, [])
+    assert not _named_over(change_of(0.05), r0, WEIGHTS, 1, [])
+
+
+def test_the_named_share_grows_with_the_size_of_the_change():
+    r0 = noise()
+    named = [_named_over(change_of(a), r0, WEIGHTS, 1, []) for a in np.geomspace(0.01, 3, 12)]
+    first = named.index(True)
+    assert all(named[first:]) and not any(named[:first])
+
+
+def test_an_effect_a_rival_structure_explains_as_well_is_not_named():
+    r0 = noise()
+    change = change_of(1.0)
+    assert not _named_over(change, r0, WEIGHTS, 1, [(change, 1)])
+    # A rival that explains a different shape leaves the effect named.
+    other = change_of(1.0, seed=7) * np.cos(np.linspace(0.0, 9.0, HORIZON))[None, :, None]
+    assert _named_over(change, r0, WEIGHTS, 1, [(other, 1)])
+
+
+def test_a_rival_that_takes_only_part_of_the_change_leaves_the_rest_to_the_effect():
+    r0 = noise()
+    change = change_of(2.0)
+    part = change_of(2.0) * np.linspace(0.0, 1.0, HORIZON)[None, :, None]
+    assert _named_over(change, r0, WEIGHTS, 1, [(part, 1)])
+
+
+def test_a_ladder_runs_from_the_weakest_effect_and_a_crack_pressure_from_the_highest():
+    sizes = ladder((1.0, 10.0, 100.0), 'coulomb_friction', 5, below=1.0)
+    assert sizes == pytest.approx((1.0, 10 ** 0.5, 10.0, 10 ** 1.5, 100.0))
+    assert ladder((4.0, 100.0), 'coulomb_friction', 3)[0] == pytest.approx(1.0)
+    pressures = ladder((5e6, 15e6), 'relief_valve', 3)
+    assert pressures[0] == pytest.approx(15e6) and pressures[-1] == pytest.approx(5e6)
+
+
+def test_the_limit_is_the_weakest_size_from_which_every_stronger_one_is_named():
+    limit = DetectionLimit('coulomb_friction', 'N', (1.0, 2.0, 4.0, 8.0),
+                           (True, False, True, True), 4.0)
+    assert not limit.below_range
+    assert 'under about 4 N cannot be told from noise' in limit.sentence()
+    assert limit.to_json() == {'limit': 4.0, 'unit': 'N', 'below_range': False,
+                               'sizes': [1.0, 2.0, 4.0, 8.0],
+                               'named': [True, False, True, True]}
+    crack = DetectionLimit('relief_valve', 'Pa', (13e6, 11e6), (False, True), 11e6)
+    assert 'above about 1.1e+07 Pa cannot be told' in crack.sentence()
+    never = DetectionLimit('transport_delay', 's', (0.001, 0.04), (False, False), None)
+    assert 'not named even at 0.04 s' in never.sentence()
+    always = DetectionLimit('pump_deadzone', 'rad/s', (2.0, 4.0), (True, True), 2.0)
+    assert always.below_range and 'named from 2 rad/s' in always.sentence()
