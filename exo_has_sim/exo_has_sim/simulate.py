@@ -62,6 +62,8 @@ _drop_stale_compiled_code()
 _pd_speed_command = njit(cache=True)(pd_speed_command)
 
 GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
+#: Steps taken on one factorisation of ``I - gamma h J`` at most (:func:`_advance`).
+REUSE = 8.0
 #: Default largest integration step [s].
 DEFAULT_STEP = 2.0e-3
 #: Default relative tolerance of the step-size control (bench/simulator.py: about 0.1 to 0.2 mm
@@ -118,18 +120,25 @@ _F0, _FP, _YP, _K1, _K2, _YN = range(6)
 @njit(cache=True)
 def _ros2_trial(y: np.ndarray, h: float, n_cmd: float, f_load: float, prm: np.ndarray,
                 work: np.ndarray, jac: np.ndarray, pivots: np.ndarray, lu: np.ndarray,
-                atol: np.ndarray, rtol: float) -> float:
-    """One ROS2 step of length h from y into work[_YN]; return the scaled error estimate."""
+                atol: np.ndarray, rtol: float, fresh: bool) -> float:
+    """One ROS2 step of length h from y into work[_YN]; return the scaled error estimate.
+
+    ``fresh``: evaluate the Jacobian at y and factorise ``I - gamma h J``; otherwise reuse the
+    factors (and the Jacobian) of an earlier step of the same length (:func:`_advance`).
+    """
     ns = y.shape[0]
     nd = model.N_DYNAMIC
     f0, fp, yp, k1, k2, yn = work[_F0], work[_FP], work[_YP], work[_K1], work[_K2], work[_YN]
-    model.rhs_and_jacobian(y, n_cmd, f_load, prm, f0, jac)
     gh = GAMMA * h
-    for i in range(nd):
-        for k in range(nd):
-            lu[i, k] = -gh * jac[i, k]
-        lu[i, i] += 1.0
-    _lu(lu, pivots)
+    if fresh:
+        model.rhs_and_jacobian(y, n_cmd, f_load, prm, f0, jac)
+        for i in range(nd):
+            for k in range(nd):
+                lu[i, k] = -gh * jac[i, k]
+            lu[i, i] += 1.0
+        _lu(lu, pivots)
+    else:
+        model.rhs(y, n_cmd, f_load, prm, f0)
     for i in range(nd):
         k1[i] = f0[i]
     _lu_solve(lu, pivots, k1[:nd])
@@ -166,7 +175,11 @@ def _advance(y: np.ndarray, span: float, step: np.ndarray, n_cmd: float, f_load:
              max_step: float) -> int:
     """Integrate y over ``span`` seconds with adaptive ROS2 steps; return the steps taken.
 
-    ``step[0]`` carries the step size from one call to the next.
+    ``step`` carries from one call to the next: [0] the step size, [1] the step length the
+    factors in ``lu`` were made for (0: none), [2] the steps taken on them. ROS2 is of order
+    two whatever matrix stands for the Jacobian (a W-method, Verwer et al. 1999), so a step
+    of the same length reuses the factors of an earlier one, at most :data:`REUSE` steps on,
+    and a step rejected on old factors is tried again on new ones before it is shortened.
     """
     t = 0.0
     h = min(step[0], max_step)
@@ -174,20 +187,33 @@ def _advance(y: np.ndarray, span: float, step: np.ndarray, n_cmd: float, f_load:
     while t < span * (1.0 - 1e-12):
         last = t + h >= span
         trial = span - t if last else h
+        fresh = trial != step[1] or step[2] >= REUSE
         error = _ros2_trial(y, trial, n_cmd, f_load, prm, work, jac, pivots, lu, atol,
-                            rtol)
+                            rtol, fresh)
+        if fresh:
+            step[1] = trial
+            step[2] = 0.0
         if error <= 1.0 or trial < 1e-9:
             for i in range(y.shape[0]):
                 y[i] = work[_YN, i]
             t += trial
             taken += 1
+            step[2] += 1.0
             grow = 0.9 / math.sqrt(max(error, 1e-10))
             if not last:
                 h = min(trial * min(2.0, max(0.5, grow)), max_step)
+        elif not fresh:
+            step[2] = REUSE  # the same step again, on factors made at its start
         else:
             h = trial * max(0.2, 0.9 / math.sqrt(error))
     step[0] = h
     return taken
+
+
+@njit(cache=True)
+def _fresh_step(max_step: float) -> np.ndarray:
+    """Return the step state of :func:`_advance` for a new joint: no factors yet."""
+    return np.array([max_step, 0.0, 0.0])
 
 
 @njit(cache=True)
@@ -233,7 +259,7 @@ def _open_loop(y0: np.ndarray, prm: np.ndarray, n_cmd: np.ndarray, f_load: np.nd
     work, jac, pivots, lu = _workspace(ns)
     taken = 0
     for j in range(joints):
-        step = np.array([max_step])
+        step = _fresh_step(max_step)
         lag = math.floor(delay[j] / period + 1e-9)
         shift = delay[j] - lag * period
         for k in range(samples):
@@ -256,7 +282,7 @@ def _closed_loop(y0: np.ndarray, prm: np.ndarray, x_ref: np.ndarray, v_ref: np.n
     work, jac, pivots, lu = _workspace(ns)
     taken = 0
     for j in range(joints):
-        step = np.array([max_step])
+        step = _fresh_step(max_step)
         previous = y[j, model.X]
         limit = prm[j, model.I_NMAX]
         lag = math.floor(delay[j] / period + 1e-9)
@@ -450,7 +476,8 @@ def _advance_all(y: np.ndarray, span: float, steps: np.ndarray, n_cmd: np.ndarra
     work, jac, pivots, lu = _workspace(y.shape[1])
     taken = 0
     for j in range(y.shape[0]):
-        taken += _advance(y[j], span, steps[j:j + 1], n_cmd[j], f_load[j], prm[j], work, jac,
+        steps[j, 1] = 0.0  # a new workspace: no factors to reuse
+        taken += _advance(y[j], span, steps[j], n_cmd[j], f_load[j], prm[j], work, jac,
                           pivots, lu, atol, rtol, max_step)
     return taken
 
@@ -482,7 +509,7 @@ class PlantSimulator:
         self.time = 0.0
         self._prm = _packed(self.params)
         self._delay = np.array([p.effects.transport_delay for p in self.params])
-        self._steps = np.full(len(self.params), max_step)
+        self._steps = np.array([_fresh_step(max_step) for _ in self.params])
         self._max_step = max_step
         self._rtol = rtol
         # Per joint: times at which commands were given, and the commands.
