@@ -16,11 +16,16 @@ dead volume), its excitation, load and sensor noise from the seed. Every draw is
 that names any cause. ``--limits``: for each effect and each size of :data:`LIMIT_SIZES`,
 ``--draws`` draws (the plants taking turns); a size is detected when the effect is named
 (alone or first); the limit is the smallest size from which every larger one is named in at
-least 90 % of its draws. ``--sensors position`` keeps only the command and the position (the
-paper's own logging, section 4.2).
+least 90 % of its draws. ``--twins N``: N effect-free draws (the plants taking turns) give each
+record's own detection limits (:mod:`exo_has_sim.diagnosis.limits`); every effect with a limit
+is then put into the draw's twins (the same seed: the same nuisance, excitation, load and
+noise) two sizes of the limit's ladder stronger and two weaker, and diagnosed in full: the
+stated limit holds when the stronger is named and the weaker not. ``--sensors position``
+keeps only the command and the position (the paper's own logging, section 4.2).
 
-Usage (``./run shell``): ``python bench/detection.py --null 40`` and ``python bench/detection.py
---limits --draws 10``; ``--jobs`` diagnoses in parallel (default: one per CPU).
+Usage (``./run shell``): ``python bench/detection.py --null 40``, ``python bench/detection.py
+--limits --draws 10`` and ``python bench/detection.py --twins 6``; ``--jobs`` diagnoses in
+parallel (default: one per CPU).
 """
 
 from __future__ import annotations
@@ -50,6 +55,9 @@ LOAD_MASS = 50.0  # kg, both plants' default
 PLANTS = {'a': plant_a, 'b': plant_b}
 FIRST_NULL_SEED = 70000
 FIRST_LIMIT_SEED = 80000
+FIRST_TWIN_SEED = 90000
+#: Ladder steps between the stated limit and the twins' sizes (about 1.6 times a step).
+TWIN_STEPS = 2
 #: Sizes tried per effect, in its unit (SI), from well below the truth plants' ranges to
 #: their middle.
 LIMIT_SIZES: dict[str, tuple[float, ...]] = {
@@ -90,6 +98,8 @@ def diagnose_draw(task: tuple[str, int, str, float | None, str, str]) -> dict[st
             'structure': doc.get('baseline_structure', []),
             'limits': {effect: limit['limit']
                        for effect, limit in doc.get('detection_limits', {}).items()},
+            'ladders': {effect: limit['sizes']
+                        for effect, limit in doc.get('detection_limits', {}).items()},
             'wall_s': round(wall, 1)}
 
 
@@ -167,18 +177,63 @@ def detection_limits(draws: int, sensors: str, jobs: int) -> None:
     write_results(f'detection_limits_{sensors}', {'table': table, 'draws': results}, lines)
 
 
+def twins(count: int, sensors: str, jobs: int) -> None:
+    """Check each record's stated detection limits against full diagnoses of its twins."""
+    with tempfile.TemporaryDirectory() as folder:
+        seeds = [('ab'[i % 2], FIRST_TWIN_SEED + i) for i in range(count)]
+        bases = run_tasks([(plant, seed, 'none', None, sensors, folder)
+                           for plant, seed in seeds], jobs)
+        tasks, stated = [], {}
+        for base in bases:
+            if base['causes']:
+                continue  # a record that named a cause states no limit for it
+            for effect, limit in base['limits'].items():
+                ladder = base['ladders'][effect]
+                if limit is None or limit not in ladder:
+                    continue
+                i = ladder.index(limit)
+                stated[(base['plant'], base['seed'], effect)] = limit
+                if i + TWIN_STEPS < len(ladder):
+                    tasks.append((base['plant'], base['seed'], effect, ladder[i + TWIN_STEPS],
+                                  sensors, folder))
+                if i - TWIN_STEPS >= 0:
+                    tasks.append((base['plant'], base['seed'], effect, ladder[i - TWIN_STEPS],
+                                  sensors, folder))
+        results = run_tasks(tasks, jobs)
+    lines = [f'bench/detection.py --twins {count} --sensors {sensors}: {describe_machine()}',
+             f'{TWIN_STEPS} ladder steps either side of each stated limit; a twin agrees when '
+             'the stronger is named (first) and the weaker not']
+    agree = 0
+    for row in sorted(results, key=lambda r: (r['effect'], r['plant'], r['seed'], r['size'])):
+        limit = stated[(row['plant'], row['seed'], row['effect'])]
+        stronger = row['size'] > limit if row['effect'] != 'relief_valve' else row['size'] < limit
+        named = bool(row['causes']) and row['causes'][0] == row['effect']
+        agree += named == stronger
+        lines.append(f'  {row["effect"]:<18} plant {row["plant"]} seed {row["seed"]}: limit '
+                     f'{limit:.3g}, twin at {row["size"]:.3g} '
+                     f'({"stronger" if stronger else "weaker"}) '
+                     f'{"named" if named else "not named"}'
+                     f'{"" if named == stronger else "  <- disagrees"}')
+    lines.insert(2, f'agreement: {agree} of {len(results)} twins')
+    write_results(f'detection_twins_{sensors}', {'bases': bases, 'twins': results}, lines)
+
+
 def main() -> None:
-    """Parse the arguments and run the ensemble or the limits."""
+    """Parse the arguments and run the ensemble, the limits or the twins."""
     parser = argparse.ArgumentParser(description=(__doc__ or '').splitlines()[0])
     mode = parser.add_mutually_exclusive_group(required=True)
     mode.add_argument('--null', type=int, metavar='N', help='effect-free draws')
     mode.add_argument('--limits', action='store_true', help='detection limit of each effect')
+    mode.add_argument('--twins', type=int, metavar='N',
+                      help='effect-free draws whose stated limits are checked on their twins')
     parser.add_argument('--draws', type=int, default=10, help='draws per effect and size')
     parser.add_argument('--sensors', choices=('full', 'position'), default='full')
     parser.add_argument('--jobs', type=int, default=os.cpu_count() or 1)
     args = parser.parse_args()
     if args.null is not None:
         null_ensemble(args.null, args.sensors, args.jobs)
+    elif args.twins is not None:
+        twins(args.twins, args.sensors, args.jobs)
     else:
         detection_limits(args.draws, args.sensors, args.jobs)
 

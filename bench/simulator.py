@@ -118,7 +118,7 @@ def main() -> int:
     parser.add_argument('--repeats', type=int, default=5, help='timed runs per case (5)')
     parser.add_argument('--out', type=Path, help='write the results as JSON here')
     parser.add_argument('--walk-only', action='store_true',
-                        help='time the closed-loop walk only (for farm-bench --vs)')
+                        help='time the closed-loop walk only (to time two versions side by side)')
     args = parser.parse_args()
     walk = closed_loop_walk(args.repeats)
     print(f'4 joints, {walk["duration_s"]:.0f} s closed-loop walking at 1 kHz: '

@@ -79,15 +79,15 @@ class DetectionLimit:
         """Say the limit in words, for the report and the summary."""
         title = EFFECTS[self.effect].title if self.effect in EFFECTS else self.effect
         weaker = 'under' if _grows_with_size(self.effect) else 'above'
+        unit = '' if self.unit in ('', '-') else f' {self.unit}'
         if self.limit is None:
-            strongest = self.sizes[-1]
-            return (f'{title}: not named even at {strongest:.3g} {self.unit}, the strongest '
+            return (f'{title}: not named even at {self.sizes[-1]:.3g}{unit}, the strongest '
                     'tried: data like these cannot show it')
         if self.below_range:
-            return (f'{title}: named from {self.limit:.3g} {self.unit} (the weakest tried) '
-                    'and stronger')
-        return (f'{title} {weaker} about {self.limit:.3g} {self.unit} cannot be told from noise '
-                'and nominal error in these data')
+            return (f'{title}: named from {self.limit:.3g}{unit} (the weakest tried) and '
+                    'stronger')
+        return (f'{title} {weaker} about {self.limit:.3g}{unit} cannot be told from noise and '
+                'nominal error in these data')
 
     def to_json(self) -> dict[str, object]:
         """Return the limit as the JSON document carries it."""
