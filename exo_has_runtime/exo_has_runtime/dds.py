@@ -25,8 +25,8 @@ What :func:`configure_transport` sets, before a process creates its first partic
   on 127.0.0.1 (and of ``ROS_STATIC_PEERS``), UDP for the data.
 - A child process inherits all this; given a discovery range of its own (a virtual host's
   ``SUBNET``), it drops the inherited LOCALHOST profile and takes what that range calls for.
-- ``OFF``, a profiles file of the user's own (``FASTRTPS_DEFAULT_PROFILES_FILE``), or another
-  RMW than rmw_fastrtps_cpp: nothing.
+- ``OFF``, a profiles file of the user's own (``FASTRTPS_DEFAULT_PROFILES_FILE``), or an RMW
+  not on Fast DDS (rmw_cyclonedds_cpp, say): nothing.
 
 ``EXO_HAS_DDS_TRANSPORT=rmw`` leaves every setting as rmw_fastrtps_cpp would take it, for the
 side-by-side comparison of ``bench/joins.py``. :mod:`exo_has_runtime.test.test_dds` fails if
@@ -47,8 +47,8 @@ from xml.sax.saxutils import escape
 
 from exo_has_runtime.errors import DdsConfigurationError
 
-#: The RMW this applies to (Jazzy's default).
-FASTRTPS_RMW = 'rmw_fastrtps_cpp'
+#: The RMWs on Fast DDS this applies to (the first is Jazzy's default).
+FASTRTPS_RMWS = ('rmw_fastrtps_cpp', 'rmw_fastrtps_dynamic_cpp')
 
 #: ``EXO_HAS_DDS_TRANSPORT`` values: ours (the default), or rmw_fastrtps_cpp's as it stands.
 TRANSPORT_CHOICES = ('udp', 'rmw')
@@ -88,7 +88,8 @@ def configure_transport(environ: MutableMapping[str, str] | None = None) -> str:
     Raises
     ------
     DdsConfigurationError
-        For an unknown ``EXO_HAS_DDS_TRANSPORT`` or a static peer that does not resolve.
+        For an unknown ``EXO_HAS_DDS_TRANSPORT``, a static peer that does not resolve, or a
+        profile that cannot be written.
 
     """
     env = os.environ if environ is None else environ
@@ -97,7 +98,8 @@ def configure_transport(environ: MutableMapping[str, str] | None = None) -> str:
         msg = (f'EXO_HAS_DDS_TRANSPORT={choice!r}: expected one of '
                f'{", ".join(TRANSPORT_CHOICES)}')
         raise DdsConfigurationError(msg)
-    if choice == 'rmw' or env.get('RMW_IMPLEMENTATION', FASTRTPS_RMW) != FASTRTPS_RMW:
+    rmw = env.get('RMW_IMPLEMENTATION', '').strip() or FASTRTPS_RMWS[0]
+    if choice == 'rmw' or rmw not in FASTRTPS_RMWS:
         return ''
     discovery = discovery_range(env)
     profile = env.get('FASTRTPS_DEFAULT_PROFILES_FILE', '')
@@ -117,7 +119,13 @@ def configure_transport(environ: MutableMapping[str, str] | None = None) -> str:
         return ''
     if discovery == 'LOCALHOST':
         peers = static_peers(env.get('ROS_STATIC_PEERS', ''))
-        env['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(write_profile(localhost_profile(peers)))
+        try:
+            written = write_profile(localhost_profile(peers))
+        except OSError as exc:
+            msg = (f'cannot write the Fast DDS profile for ROS_AUTOMATIC_DISCOVERY_RANGE='
+                   f'LOCALHOST into {tempfile.gettempdir()}: {exc}')
+            raise DdsConfigurationError(msg) from None
+        env['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(written)
         env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'SYSTEM_DEFAULT'
         env.pop('ROS_LOCALHOST_ONLY', None)
         return ''

@@ -120,6 +120,15 @@ def test_an_unknown_transport_choice_or_peer_is_refused_by_name():
         static_peers('10.0.0.1;no-such-host.invalid')
 
 
+def test_the_dynamic_fast_dds_rmw_is_configured_too_and_an_unwritable_profile_is_named(
+        tmp_path, monkeypatch):
+    env, _ = configured(RMW_IMPLEMENTATION='rmw_fastrtps_dynamic_cpp')
+    assert env['FASTDDS_BUILTIN_TRANSPORTS'] == 'UDPv4'
+    monkeypatch.setattr('tempfile.tempdir', str(tmp_path / 'missing'))
+    with pytest.raises(DdsConfigurationError, match='cannot write the Fast DDS profile'):
+        configured(ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+
+
 def test_a_profile_is_written_once_under_a_name_of_its_content(tmp_path):
     text = localhost_profile(['10.0.0.2'])
     first = write_profile(text, tmp_path)
