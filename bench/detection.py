@@ -23,8 +23,13 @@ noise) two sizes of the limit's ladder stronger and two weaker, and diagnosed in
 stated limit holds when the stronger is named and the weaker not. ``--sensors position``
 keeps only the command and the position (the paper's own logging, section 4.2).
 
+``--hidden`` diagnoses the 21 draws of test/test_hidden_effects.py (20 s each) and lists
+each outcome: named, missed, another cause named (with the hidden effect reported beside it
+or not), or, for an effect the signals cannot identify, nothing named.
+
 Usage (``./run shell``): ``python bench/detection.py --null 40``, ``python bench/detection.py
---limits --draws 10`` and ``python bench/detection.py --twins 6``; ``--jobs`` diagnoses in
+--limits --draws 10``, ``python bench/detection.py --twins 6`` and ``python
+bench/detection.py --hidden --sensors position``; ``--jobs`` diagnoses in
 parallel (default: one per CPU).
 """
 
@@ -56,6 +61,11 @@ PLANTS = {'a': plant_a, 'b': plant_b}
 FIRST_NULL_SEED = 70000
 FIRST_LIMIT_SEED = 80000
 FIRST_TWIN_SEED = 90000
+#: The hidden-effect test's draws (test/test_hidden_effects.py): plant, draws, first seed;
+#: the effects take turns over each plant's draws.
+HIDDEN_DRAWS = (('a', 14, 5000), ('b', 7, 6000))
+HIDDEN_DURATION = 20.0  # s
+EFFECT_CHOICES = plant_a.EFFECT_CHOICES
 #: Ladder steps between the stated limit and the twins' sizes (about 1.6 times a step).
 TWIN_STEPS = 2
 #: Sizes tried per effect, in its unit (SI), from well below the truth plants' ranges to
@@ -68,19 +78,29 @@ LIMIT_SIZES: dict[str, tuple[float, ...]] = {
     'relief_valve': (13e6, 12e6, 11e6, 10e6),
     'entrained_air': (0.01, 0.02, 0.05, 0.1),
 }
+#: With ``--sensors position``, sizes for the effects that stay identifiable: the per-record
+#: limits of effect-free position-only draws lie above the full set's sizes.
+POSITION_LIMIT_SIZES: dict[str, tuple[float, ...]] = {
+    'pump_deadzone': (4.0, 8.0, 16.0, 32.0),
+    'transport_delay': (4e-3, 8e-3, 16e-3, 32e-3),
+}
 #: Columns kept with ``--sensors position``.
 POSITION_ONLY = ('time', 'motor_speed_command', 'position', 'reference')
 
 
-def _draw(plant: str, seed: int, effect: str, size: float | None) -> Any:
+def _draw(plant: str, seed: int, effect: str, size: float | None, duration: float) -> Any:
     module = PLANTS[plant]
-    return module.draw(seed, effect=effect, size=size, duration=DURATION, load_mass=LOAD_MASS)
+    return module.draw(seed, effect=effect, size=size, duration=duration, load_mass=LOAD_MASS)
 
 
-def diagnose_draw(task: tuple[str, int, str, float | None, str, str]) -> dict[str, Any]:
+#: A draw to diagnose: plant, seed, effect, size (None: drawn), sensors, folder, duration [s].
+Task = tuple[str, int, str, float | None, str, str, float]
+
+
+def diagnose_draw(task: Task) -> dict[str, Any]:
     """Draw one data set, write it as CSV, diagnose it; the verdict and the truth."""
-    plant, seed, effect, size, sensors, folder = task
-    draw = _draw(plant, seed, effect, size)
+    plant, seed, effect, size, sensors, folder, duration = task
+    draw = _draw(plant, seed, effect, size, duration)
     columns = plant_a.COLUMNS if sensors == 'full' else POSITION_ONLY
     path = Path(folder) / f'{plant}_{seed}_{effect}_{size}.csv'
     table = np.column_stack([draw.columns[name] for name in columns])
@@ -96,6 +116,7 @@ def diagnose_draw(task: tuple[str, int, str, float | None, str, str]) -> dict[st
             'sensors': sensors, 'code': code, 'causes': doc.get('causes', []),
             'sizes': doc.get('sizes', {}), 'indistinguishable': doc.get('indistinguishable', []),
             'structure': doc.get('baseline_structure', []),
+            'unidentifiable': sorted(doc.get('unidentifiable', {})),
             'limits': {effect: limit['limit']
                        for effect, limit in doc.get('detection_limits', {}).items()},
             'ladders': {effect: limit['sizes']
@@ -103,7 +124,7 @@ def diagnose_draw(task: tuple[str, int, str, float | None, str, str]) -> dict[st
             'wall_s': round(wall, 1)}
 
 
-def run_tasks(tasks: Sequence[tuple[str, int, str, float | None, str, str]],
+def run_tasks(tasks: Sequence[Task],
               jobs: int) -> list[dict[str, Any]]:
     """Diagnose the tasks on ``jobs`` processes, printing a line per result."""
     results = []
@@ -117,7 +138,7 @@ def run_tasks(tasks: Sequence[tuple[str, int, str, float | None, str, str]],
 def null_ensemble(count: int, sensors: str, jobs: int) -> None:
     """Measure the false-alarm rate over ``count`` effect-free draws."""
     with tempfile.TemporaryDirectory() as folder:
-        tasks = [('ab'[i % 2], FIRST_NULL_SEED + i, 'none', None, sensors, folder)
+        tasks = [('ab'[i % 2], FIRST_NULL_SEED + i, 'none', None, sensors, folder, DURATION)
                  for i in range(count)]
         results = sorted(run_tasks(tasks, jobs), key=lambda r: r['seed'])
     alarms = [r for r in results if r['causes']]
@@ -133,14 +154,22 @@ def null_ensemble(count: int, sensors: str, jobs: int) -> None:
                      f'a second-order motor loop taken in '
                      f'{sum("second_order_motor" in r["structure"] for r in mine)}')
     lines += [f'  seed {r["seed"]} plant {r["plant"]} {r["joint"]} {r["excitation"]}: named '
-              f'{", ".join(r["causes"])} {r["sizes"]}' for r in alarms]
+              f'{", ".join(r["causes"])} {r["sizes"]}'
+              + (f'; beside it: {", ".join(r["indistinguishable"])}'
+                 if r['indistinguishable'] else '') for r in alarms]
     lines.append("each record's own detection limits (exo_has_sim.diagnosis.limits), median and "
                  'range over the draws that named nothing (None: not named at the strongest '
                  'size tried):')
     quiet = [r for r in results if not r['causes']]
     for effect in LIMIT_SIZES:
         for plant in PLANTS:
-            values = [r['limits'].get(effect) for r in quiet if r['plant'] == plant]
+            mine = [r for r in quiet if r['plant'] == plant]
+            values = [r['limits'].get(effect) for r in mine
+                      if effect not in r.get('unidentifiable', [])]
+            if not values and mine:
+                lines.append(f'  {effect}, plant {plant}: not identifiable from these signals '
+                             f'in {len(mine)} of {len(mine)}')
+                continue
             found = [v for v in values if v is not None]
             spread = (f'median {float(np.median(found)):.3g}, {min(found):.3g} to '
                       f'{max(found):.3g}' if found else 'none found')
@@ -151,16 +180,23 @@ def null_ensemble(count: int, sensors: str, jobs: int) -> None:
 
 def detection_limits(draws: int, sensors: str, jobs: int) -> None:
     """Measure the share of draws naming each effect at each size, and the limit (90 %)."""
+    table_sizes = LIMIT_SIZES | (POSITION_LIMIT_SIZES if sensors == 'position' else {})
     with tempfile.TemporaryDirectory() as folder:
-        tasks = [('ab'[k % 2], FIRST_LIMIT_SEED + 1000 * e + k, effect, size, sensors, folder)
-                 for e, (effect, sizes) in enumerate(LIMIT_SIZES.items())
+        tasks = [('ab'[k % 2], FIRST_LIMIT_SEED + 1000 * e + k, effect, size, sensors, folder,
+                  DURATION)
+                 for e, (effect, sizes) in enumerate(table_sizes.items())
                  for size in sizes for k in range(draws)]
         results = run_tasks(tasks, jobs)
     lines = [f'bench/detection.py --limits --draws {draws} --sensors {sensors}: '
-             f'{describe_machine()}', 'effect: named share per size; limit (90 %)']
+             f'{describe_machine()}', 'effect: named share per size; limit (90 %); draws '
+             'naming another cause, and of those the ones reporting the effect beside it']
     table = {}
-    for effect, sizes in LIMIT_SIZES.items():
+    for effect, sizes in table_sizes.items():
         shares = []
+        wrong = [r for r in results if r['effect'] == effect and set(r['causes']) - {effect}]
+        hedged = [r for r in wrong if effect in r['indistinguishable']]
+        unidentifiable = sum(effect in r.get('unidentifiable', []) for r in results
+                             if r['effect'] == effect)
         for size in sizes:
             mine = [r for r in results if r['effect'] == effect and r['size'] == size]
             named = sum(bool(r['causes']) and r['causes'][0] == effect for r in mine)
@@ -170,18 +206,67 @@ def detection_limits(draws: int, sensors: str, jobs: int) -> None:
             if all(share >= 0.9 for share in shares[i:]):
                 limit = sizes[i]
                 break
-        table[effect] = {'sizes': list(sizes), 'named_share': shares, 'limit': limit}
+        table[effect] = {'sizes': list(sizes), 'named_share': shares, 'limit': limit,
+                         'other_cause': len(wrong), 'other_cause_hedged': len(hedged),
+                         'unidentifiable': unidentifiable}
         lines.append(f'{effect}: ' + ', '.join(f'{size:g}: {share:.0%}' for size, share
                                                in zip(sizes, shares, strict=True))
-                     + f'; limit {"above the sizes tried" if limit is None else f"{limit:g}"}')
+                     + f'; limit {"above the sizes tried" if limit is None else f"{limit:g}"}'
+                     + f'; another cause in {len(wrong)} of {draws * len(sizes)} '
+                     f'({len(hedged)} with the effect beside it)'
+                     + (f'; reported unidentifiable in {unidentifiable}' if unidentifiable
+                        else ''))
     write_results(f'detection_limits_{sensors}', {'table': table, 'draws': results}, lines)
+
+
+def _outcome(row: dict[str, Any]) -> str:
+    """Say what a diagnosis made of its draw's hidden effect (or of its absence)."""
+    truth = [] if row['effect'] == 'none' else [row['effect']]
+    if row['causes'] == truth:
+        return 'right'
+    if not row['causes']:
+        return ('unidentifiable, nothing named' if row['effect'] in row['unidentifiable']
+                else 'missed')
+    if row['effect'] in row['indistinguishable']:
+        return 'another cause, the effect beside it'
+    return 'another cause'
+
+
+def hidden_draws(sensors: str, jobs: int) -> None:
+    """Diagnose the hidden-effect test's draws (test/test_hidden_effects.py) with ``sensors``."""
+    with tempfile.TemporaryDirectory() as folder:
+        tasks = [(plant, first + i, EFFECT_CHOICES[i % len(EFFECT_CHOICES)], None, sensors,
+                  folder, HIDDEN_DURATION)
+                 for plant, count, first in HIDDEN_DRAWS for i in range(count)]
+        results = run_tasks(tasks, jobs)
+    results.sort(key=lambda r: r['seed'])
+    outcomes: dict[str, list[dict[str, Any]]] = {
+        'right': [], 'unidentifiable, nothing named': [], 'missed': [],
+        'another cause, the effect beside it': [], 'another cause': []}
+    for r in results:
+        r['outcome'] = _outcome(r)
+        outcomes[r['outcome']].append(r)
+    lines = [f'bench/detection.py --hidden --sensors {sensors}: {describe_machine()}',
+             f'{len(results)} draws of {HIDDEN_DURATION:g} s; wall per diagnosis median '
+             f'{float(np.median([r["wall_s"] for r in results])):.1f} s',
+             *(f'  {key}: {len(rows)}' for key, rows in outcomes.items())]
+    for r in results:
+        sizes = ', '.join(f'{k} {v:.3g}' for k, v in r['sizes'].items())
+        error = (f' ({r["sizes"][r["effect"]] / r["size"] - 1.0:+.1%})'
+                 if r['effect'] in r['sizes'] else '')
+        lines.append(f'  {r["plant"]} {r["seed"]} {r["joint"]} {r["excitation"]} '
+                     f'{r["effect"]} {r["size"]:.3g}: {r["outcome"]}; named '
+                     f'{sizes or "none"}{error}'
+                     + (f'; beside: {", ".join(r["indistinguishable"])}'
+                        if r['indistinguishable'] else ''))
+    write_results(f'detection_hidden_{sensors}', {'draws': results}, lines)
 
 
 def twins(count: int, sensors: str, jobs: int) -> None:
     """Check each record's stated detection limits against full diagnoses of its twins."""
     with tempfile.TemporaryDirectory() as folder:
         seeds = [('ab'[i % 2], FIRST_TWIN_SEED + i) for i in range(count)]
-        bases = run_tasks([(plant, seed, 'none', None, sensors, folder)
+        bases = run_tasks([(plant, seed, 'none', None, sensors, folder, DURATION)
                            for plant, seed in seeds], jobs)
         tasks, stated = [], {}
         for base in bases:
@@ -195,10 +280,10 @@ def twins(count: int, sensors: str, jobs: int) -> None:
                 stated[(base['plant'], base['seed'], effect)] = limit
                 if i + TWIN_STEPS < len(ladder):
                     tasks.append((base['plant'], base['seed'], effect, ladder[i + TWIN_STEPS],
-                                  sensors, folder))
+                                  sensors, folder, DURATION))
                 if i - TWIN_STEPS >= 0:
                     tasks.append((base['plant'], base['seed'], effect, ladder[i - TWIN_STEPS],
-                                  sensors, folder))
+                                  sensors, folder, DURATION))
         results = run_tasks(tasks, jobs)
     lines = [f'bench/detection.py --twins {count} --sensors {sensors}: {describe_machine()}',
              f'{TWIN_STEPS} ladder steps either side of each stated limit; a twin agrees when '
@@ -226,6 +311,8 @@ def main() -> None:
     mode.add_argument('--limits', action='store_true', help='detection limit of each effect')
     mode.add_argument('--twins', type=int, metavar='N',
                       help='effect-free draws whose stated limits are checked on their twins')
+    mode.add_argument('--hidden', action='store_true',
+                      help="the hidden-effect test's 21 draws, each outcome listed")
     parser.add_argument('--draws', type=int, default=10, help='draws per effect and size')
     parser.add_argument('--sensors', choices=('full', 'position'), default='full')
     parser.add_argument('--jobs', type=int, default=os.cpu_count() or 1)
@@ -234,6 +321,8 @@ def main() -> None:
         null_ensemble(args.null, args.sensors, args.jobs)
     elif args.twins is not None:
         twins(args.twins, args.sensors, args.jobs)
+    elif args.hidden:
+        hidden_draws(args.sensors, args.jobs)
     else:
         detection_limits(args.draws, args.sensors, args.jobs)
 

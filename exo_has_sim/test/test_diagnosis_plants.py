@@ -236,3 +236,60 @@ def test_a_second_order_motor_loop_is_taken_as_the_baseline_not_named_a_transpor
     # A parameter set whose loop is second order already re-estimates its damping ratio.
     assert HasPlant(plant.measurement, truth).alternatives == {}
     assert 'motor_damping_ratio' in [p.name for p in HasPlant(plant.measurement, truth).baseline]
+
+
+def position_only(columns):
+    return {name: columns[name] for name in ('time', 'motor_speed_command', 'position')}
+
+
+def test_without_pressure_or_load_the_effects_through_the_pressure_are_not_identifiable():
+    hip = load_parameters('hip')
+    columns = has_closed_loop(hip, seconds=3.0)
+    bare = HasPlant(check_columns(position_only(columns), 'has', 'own model'), hip)
+    assert sorted(bare.unidentifiable) == ['coulomb_friction', 'entrained_air',
+                                           'quadratic_leakage', 'relief_valve']
+    assert 'pressure_a' in bare.unidentifiable['relief_valve']
+    # Each window estimates its own load, so no constant load is fitted.
+    assert bare.window_load and 'load_force' not in [p.name for p in bare.baseline]
+    for extra in ('pressure_a', 'load_force'):
+        signals = position_only(columns) | {extra: columns[extra]}
+        plant = HasPlant(check_columns(signals, 'has', 'own model'), hip)
+        assert plant.unidentifiable == {} and not plant.window_load
+    constant = HasPlant(bare.measurement, hip, constant_load=True)
+    assert constant.unidentifiable == {} and not constant.window_load
+    assert constant.baseline[-1].name == 'load_force'
+
+
+def test_each_window_takes_the_load_its_position_calls_for_when_the_load_is_unmeasured():
+    hip = load_parameters('hip')
+    truth = hip.replace(bulk_modulus=1.2e9, pump_leakage=2e-13, damping=1800.0)
+    columns = has_closed_loop(truth)  # a load swinging between 2 and 10 MPa
+    measurement = check_columns(position_only(columns), 'has', 'own model',
+                                Limits(hip.stroke, hip.motor_speed_max))
+    values = {'bulk_modulus': 1.2e9, 'pump_leakage': 2e-13, 'damping': 1800.0}
+    fits = []
+    for constant_load in (False, True):
+        plant = HasPlant(measurement, hip, constant_load=constant_load)
+        span = make_windows(measurement.samples, 100, plant.first_start, 20).span
+        level = {'load_force': float(np.median(columns['load_force']))} if constant_load else {}
+        fits.append(evaluate(plant, [values | level], span, output_weights(plant))[0].fit(0))
+    # The load's median for every window leaves a quarter of the motion unexplained; a level
+    # and a slope per window (linearised), a twentieth of a per cent.
+    assert fits[0] > 99.8 and fits[1] < 80.0
+
+
+def test_in_position_only_data_a_dead_zone_is_named_and_the_rest_declared_unidentifiable():
+    hip = load_parameters('hip')
+    truth = hip.replace(bulk_modulus=0.9e9, damping=1300.0).with_effects(pump_deadzone=12.0)
+    rng = np.random.default_rng(9)
+    columns = position_only(has_closed_loop(truth, seconds=12.0, seed=3))
+    columns['position'] = columns['position'] + rng.normal(0.0, 1e-5, len(columns['time']))
+    result = diagnose(HasPlant(check_columns(columns, 'has', 'own model'), hip))
+    assert result.causes == ('pump_deadzone',)
+    assert_allclose(result.sizes()['pump_deadzone'], 12.0, rtol=0.1)
+    doc = result.to_json()
+    assert sorted(doc['unidentifiable']) == ['coulomb_friction', 'entrained_air',
+                                             'quadratic_leakage', 'relief_valve']
+    tried = {row['effect'] for row in doc['ranking']}
+    assert tried.isdisjoint(doc['unidentifiable']) and 'transport_delay' in tried
+    assert set(doc['detection_limits']).isdisjoint(doc['unidentifiable'])

@@ -43,6 +43,10 @@ def _parser() -> argparse.ArgumentParser:
                         help=f'scored prediction horizon per window [s] ({DEFAULT_HORIZON})')
     parser.add_argument('--burn-in', type=float, default=DEFAULT_BURN_IN, metavar='S',
                         help=f'unscored simulation before each horizon [s] ({DEFAULT_BURN_IN})')
+    parser.add_argument('--constant-load', action='store_true',
+                        help='the load is constant (a fixed mass on a bench): lets a record '
+                        'without pressure_a or load_force name the effects that act through '
+                        'the pressure')
     parser.add_argument('--max-causes', type=int, default=2, help='most effects to name (2)')
     parser.add_argument('-q', '--quiet', action='store_true',
                         help='no progress lines on stderr')
@@ -57,7 +61,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(line, file=sys.stderr, flush=True)
 
     try:
-        plant = load_plant(args.input, args.plant, args.joint, args.load_mass, args.params)
+        plant = load_plant(args.input, args.plant, args.joint, args.load_mass, args.params,
+                           args.constant_load)
         result = diagnose(plant, args.horizon, args.burn_in, max_causes=args.max_causes,
                           progress=None if args.quiet else progress)
         print(summary(result))

@@ -16,6 +16,12 @@
    the baseline's residuals (:mod:`~exo_has_sim.diagnosis.residuals`);
 7. the detection limit of every effect left out, in this record
    (:mod:`~exo_has_sim.diagnosis.limits`).
+
+Effects the record's signals cannot identify (:attr:`Plant.unidentifiable`: those acting
+through the pressure, in a record of command and position alone with the load unmeasured) are
+left out of 5 and 7 and reported as such: the verdict does not guess between them. Each named
+choice is still checked against them (:func:`~exo_has_sim.diagnosis.selection.hidden_rivals`),
+and one that explains the data as well is reported beside it as indistinguishable.
 """
 
 from __future__ import annotations
@@ -57,7 +63,13 @@ from exo_has_sim.diagnosis.residuals import (
     cross_correlation,
     signatures,
 )
-from exo_has_sim.diagnosis.selection import REFERENCE_TOLERANCE, Score, forward_selection, rivals
+from exo_has_sim.diagnosis.selection import (
+    REFERENCE_TOLERANCE,
+    Score,
+    forward_selection,
+    hidden_rivals,
+    rivals,
+)
 from exo_has_sim.diagnosis.transfer import ThirdOrderModel, identify_third_order
 from exo_has_sim.errors import DiagnosisError, FitError, MeasurementError
 from exo_has_sim.parameters import load_parameters
@@ -113,6 +125,13 @@ class Diagnosis:
     limits : dict[str, DetectionLimit]
         Each effect left out of the extended model, with the smallest size of it this record
         would have named (:mod:`~exo_has_sim.diagnosis.limits`).
+    unidentifiable : dict[str, str]
+        Effects the record's signals cannot identify, with the reason
+        (:attr:`~exo_has_sim.diagnosis.plants.Plant.unidentifiable`): never named, given no
+        limits, only checked as rivals of what is named.
+    hidden_rivals : dict[str, list[str]]
+        Each named choice with the unidentifiable effects that explain the data as well
+        (:func:`~exo_has_sim.diagnosis.selection.hidden_rivals`).
 
     """
 
@@ -133,6 +152,8 @@ class Diagnosis:
     elapsed: float = 0.0
     structure: tuple[str, ...] = ()
     limits: dict[str, DetectionLimit] = field(default_factory=dict)
+    unidentifiable: dict[str, str] = field(default_factory=dict)
+    hidden_rivals: dict[str, list[str]] = field(default_factory=dict)
 
     @property
     def cause(self) -> str:
@@ -146,6 +167,8 @@ class Diagnosis:
         out = {}
         for step in self.steps:
             others = [e for e in rivals(step) if e not in chosen]
+            others += [e for e in self.hidden_rivals.get(step[0].effect if step else '', [])
+                       if e not in others]
             if others:
                 out[step[0].effect] = others
         return out
@@ -199,6 +222,7 @@ class Diagnosis:
             'causes': list(self.causes),
             'sizes': self.sizes(),
             'indistinguishable': self.indistinguishable,
+            'unidentifiable': dict(self.unidentifiable),
             'baseline_structure': list(self.structure),
             'parameters': self.parameters(),
             'fit_baseline': fits['baseline']['position'],
@@ -289,6 +313,11 @@ def diagnose(plant: Plant, horizon: float = DEFAULT_HORIZON, burn_in: float = DE
         msg = (f'unknown effect {", ".join(unknown)} for the {plant.kind} plant; known: '
                f'{", ".join(plant.effects)}')
         raise DiagnosisError(msg)
+    unidentifiable = {e: why for e, why in plant.unidentifiable.items() if e in chosen}
+    if unidentifiable:
+        say(f'not identifiable from these signals: {", ".join(unidentifiable)} '
+            f'({next(iter(unidentifiable.values()))})')
+    chosen = tuple(e for e in chosen if e not in unidentifiable)
     windows = make_windows(m.samples, horizon_samples(horizon, m.period), plant.first_start,
                            round(burn_in / m.period))
     estimation, validation = windows.estimation_span, windows.validation_span
@@ -314,6 +343,8 @@ def diagnose(plant: Plant, horizon: float = DEFAULT_HORIZON, burn_in: float = DE
     steps = forward_selection(plant, baseline, baseline_validation, windows, weights, chosen,
                               max_causes, progress)
     named = [step[0] for step in steps if step[0].significant]
+    hidden = hidden_rivals(plant, steps, baseline, baseline_validation, windows, weights,
+                           list(unidentifiable), progress)
     alternatives = plant.alternatives
     structure = tuple(score.effect for score in named if score.effect in alternatives)
     if named and named[0].effect in alternatives:
@@ -342,7 +373,8 @@ def diagnose(plant: Plant, horizon: float = DEFAULT_HORIZON, burn_in: float = DE
         say(f'  {limit.sentence()}')
     return Diagnosis(plant, windows, weights, nominal, baseline, baseline_validation, steps,
                      causes, extended, extended_validation, transfer, transfer_fit, tests,
-                     found, time.perf_counter() - started, structure, limits)
+                     found, time.perf_counter() - started, structure, limits, unidentifiable,
+                     hidden)
 
 
 def _paper_transfer_function(plant: Plant,
@@ -396,7 +428,8 @@ def effect_title(effect: str) -> str:
 
 
 def load_plant(source: str | Path, plant: str = 'has', joint: str | None = None,
-               load_mass: float | None = None, params: str | Path | None = None) -> Plant:
+               load_mass: float | None = None, params: str | Path | None = None,
+               constant_load: bool = False) -> Plant:
     """Read a CSV log or a bag and build the plant to diagnose it with.
 
     Parameters
@@ -413,6 +446,9 @@ def load_plant(source: str | Path, plant: str = 'has', joint: str | None = None,
         start of the mass's fit, default 50 kg).
     params : str, Path or None
         A parameters file instead of the joint type's set (HAS).
+    constant_load : bool
+        The user's word that an unmeasured load does not vary (HAS; see
+        :attr:`~exo_has_sim.diagnosis.plants.HasPlant.unidentifiable`).
 
     Raises
     ------
@@ -450,7 +486,7 @@ def load_plant(source: str | Path, plant: str = 'has', joint: str | None = None,
         measurement = read_bag(path, joint, limits)
     else:
         measurement = read_csv(path, 'has', limits)
-    return HasPlant(measurement, parameters, load_mass)
+    return HasPlant(measurement, parameters, load_mass, constant_load)
 
 
 def _only_joint(path: Path) -> str | None:

@@ -51,6 +51,12 @@ class Effect:
         Plants it applies to.
     grows_with_size : bool
         Whether a larger size is a stronger effect (not so for a crack pressure).
+    through_pressure : bool
+        Whether it acts on the HAS's motion only through the rodless pressure: a force
+        (friction) that the pressure balances, or a flow law of the pressure (a leakage, a
+        valve, the oil's stiffness). Without a pressure or a load-force signal an unmeasured
+        load that varies can make any pressure, so such an effect is not identifiable from
+        the command and the position alone (:attr:`HasPlant.unidentifiable`).
 
     """
 
@@ -62,6 +68,7 @@ class Effect:
     unit: str
     plants: tuple[str, ...]
     grows_with_size: bool = True
+    through_pressure: bool = False
 
 
 EFFECTS: dict[str, Effect] = {e.id: e for e in (
@@ -69,7 +76,8 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in (
            'seal friction F_c tanh(v / 1 mm/s) opposing the motion (HAS); F_c sign(v) with '
            'stiction (mass plant)',
            'a step in the force (pressure) residual with the sign of the velocity, largest '
-           'at direction reversals', 'coulomb_friction', 'N', ('has', 'mass')),
+           'at direction reversals', 'coulomb_friction', 'N', ('has', 'mass'),
+           through_pressure=True),
     Effect('pump_deadzone', 'pump dead zone',
            'no flow while |n| < n_dz (the flow matching valve has not switched), '
            'n - n_dz sign(n) beyond it (HAS); a force dead zone on the input (mass plant)',
@@ -82,16 +90,17 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in (
     Effect('quadratic_leakage', 'quadratic leakage',
            'an extra pump leakage L_n2 p|p| (turbulent gaps)',
            'a velocity residual growing with the square of the pressure', 'quadratic_leakage',
-           'm^3/(s Pa^2)', ('has',)),
+           'm^3/(s Pa^2)', ('has',), through_pressure=True),
     Effect('relief_valve', 'relief valve cracking below its setting',
            'the safety valve passes G_crack (min(p, p_relief) - p_crack) above p_crack',
            'a velocity residual that appears only above a pressure threshold',
-           'relief_crack_pressure', 'Pa', ('has',), grows_with_size=False),
+           'relief_crack_pressure', 'Pa', ('has',), grows_with_size=False,
+           through_pressure=True),
     Effect('entrained_air', 'entrained air',
            'free air in the oil (volume fraction alpha at atmospheric pressure) compressed '
            'adiabatically: a bulk modulus that falls at low pressure',
            'a pressure residual at low pressure where the pressure changes fast (too stiff a '
-           'model there)', 'entrained_air', '-', ('has',)),
+           'model there)', 'entrained_air', '-', ('has',), through_pressure=True),
 )}
 
 

@@ -84,6 +84,11 @@ DEFAULT_UNCERTAINTY: dict[str, float | None] = {
 SECOND_ORDER_GRID = (0.4, 0.7, 1.0, 1.5)
 #: Motor speed and spool histories kept (one per delay and time constant a fit tried).
 DRIVE_CACHE = 32
+#: Load step [share of the peak thrust] of the second simulation that gives a window's
+#: sensitivity to an unmeasured load (:meth:`HasPlant.predict`).
+WINDOW_LOAD_STEP = 0.2
+#: Candidate key of the load ramp across each window [N, at its ends] (internal: predict).
+_LOAD_RAMP = '_window_load_ramp'
 #: Most joints (candidate x window pairs) integrated in one call, which bounds the memory of
 #: the state history (a call holds horizon x joints x model.N_STATE floats).
 MAX_JOINTS = 2048
@@ -221,6 +226,16 @@ class Plant(ABC):
     def effects(self) -> tuple[str, ...]:
         """Ids of the effects this plant can be extended with."""
 
+    @property
+    def unidentifiable(self) -> dict[str, str]:
+        """Effects the measured signals cannot identify, each with the reason (none here).
+
+        A diagnosis neither names these nor states detection limits for them (whatever such
+        an effect would explain, something unmeasured explains as well); it only checks them
+        as rivals of what it names.
+        """
+        return {}
+
     @abstractmethod
     def effect_parameters(self, effect: str) -> tuple[Parameter, ...]:
         """Parameters of an effect in this plant; its first is the effect's size."""
@@ -313,14 +328,19 @@ class HasPlant(Plant):
         Nominal parameters (joint type's set or a parameters file), effects off.
     load_mass : float or None
         Mass moved by the cylinder [kg] (replaces ``params.load_mass``).
+    constant_load : bool
+        The user's word that an unmeasured load does not vary (a bench test with a fixed
+        mass): it then makes the effects that act through the pressure identifiable from
+        the position alone (:attr:`unidentifiable`).
 
     """
 
     kind = 'has'
 
     def __init__(self, measurement: Measurement, params: HasParameters,
-                 load_mass: float | None = None) -> None:
+                 load_mass: float | None = None, constant_load: bool = False) -> None:
         self.measurement = measurement
+        self.constant_load = constant_load
         base = params if load_mass is None else replace(params, load_mass=load_mass)
         self.params = replace(base, effects=Effects())
         self.outputs = ('position', *(name for name in ('pressure_a', 'motor_speed')
@@ -384,10 +404,53 @@ class HasPlant(Plant):
         ]
         if p.motor_damping_ratio > 0.0:  # the parameter set's loop is second order already
             out.append(self._damping_ratio(p.motor_damping_ratio, prior('motor_damping_ratio')))
-        if self._load is None:
+        if self._load is None and not self.window_load:
             out.append(Parameter('load_force', 'N', self._load_guess, 1.0, 2.0 * p.peak_thrust,
                                  'constant external load force pushing the cylinder in'))
         return tuple(out)
+
+    @property
+    def window_load(self) -> bool:
+        """Whether each window estimates a load of its own (:meth:`predict`).
+
+        So it does when neither the pressure nor the load is measured and the user has not
+        said that the load is constant: a load that varies unmeasured (a gait's) would
+        otherwise leave its own misfit to the effects that stay identifiable.
+        """
+        return self._p is None and self._load is None and not self.constant_load
+
+    def predict(self, candidates: Sequence[Candidate], span: Span) -> FloatArray:
+        """Predict the outputs at the scored samples, a window's load its own if unmeasured.
+
+        With :attr:`window_load`, each window takes the load, a level and a slope over the
+        window, that fits its measured position best, as it takes its initial state from the
+        data: the prediction at the load guess is moved along the window's sensitivities to
+        the level and to the slope (two more simulations, the load raised by
+        :data:`WINDOW_LOAD_STEP` of the peak thrust, once throughout and once as a ramp from
+        minus to plus that across the window, the start state with it) by the least-squares
+        step, linear in the load as the leakage and the compression are in the pressure.
+        """
+        predicted = super().predict(candidates, span)
+        if not self.window_load:
+            return predicted
+        step = WINDOW_LOAD_STEP * self.params.peak_thrust
+        pushed = super().predict([{**c, 'load_force': self._load_guess + step}
+                                  for c in candidates]
+                                 + [{**c, _LOAD_RAMP: step} for c in candidates], span)
+        changes = np.stack([pushed[:len(candidates)] - predicted,
+                            pushed[len(candidates):] - predicted], axis=-1)
+        error = self.measured(span)[None, ..., 0] - predicted[..., 0]
+        basis = changes[..., 0, :]  # position's sensitivities, (..., horizon, 2)
+        normal = np.einsum('...ki,...kj->...ij', basis, basis)
+        right = np.einsum('...ki,...k->...i', basis, error)
+        # A window where the load does not move the position (cavitation, a stop) keeps
+        # the guess: the ridge is negligible against any sensitivity that counts.
+        ridge = 1e-12 * np.trace(normal, axis1=-2, axis2=-1)[..., None, None] + 1e-300
+        with np.errstate(invalid='ignore', over='ignore'):
+            gains = np.linalg.solve(normal + ridge * np.eye(2), right[..., None])[..., 0]
+        gains = np.where(np.isfinite(gains), gains, 0.0)
+        return np.asarray(predicted + np.einsum('...hoi,...i->...ho', changes, gains),
+                          dtype=float)
 
     @property
     def alternatives(self) -> dict[str, tuple[Parameter, ...]]:
@@ -412,6 +475,31 @@ class HasPlant(Plant):
         """Every effect of the library."""
         return ('coulomb_friction', 'pump_deadzone', 'transport_delay', 'quadratic_leakage',
                 'relief_valve', 'entrained_air')
+
+    @property
+    def unidentifiable(self) -> dict[str, str]:
+        """The effects that act through the pressure, when neither it nor the load is known.
+
+        The position tells only the net flow into the rodless chamber, ``A_A v``; the pump's
+        flow is known from the command, and the rest, leakage and compression, is a function
+        of the pressure ``p``. Without a pressure signal, ``p`` follows from the force balance
+        ``A_A p = M a + B v + F_friction + F_load``, so an unmeasured load that varies can
+        make any pressure history: a friction force is then a different load, and any other
+        flow law of the pressure (a quadratic leakage, a cracked valve, a softer oil) is
+        matched by a different pressure, hence a different load. Only the flow path from the
+        command to the pump (dead zone, delay, speed loop) stays identifiable. A user who
+        knows the load to be constant says so (``constant_load``): one level is then fitted
+        and every effect tried.
+        """
+        from exo_has_sim.diagnosis.effects import EFFECTS
+
+        if self._p is not None or self._load is not None or self.constant_load:
+            return {}
+        why = ('it acts on the motion only through the rodless pressure, and with neither '
+               'pressure_a nor load_force measured a load that varies unmeasured would make '
+               'the same record; record either, or state that the load is constant '
+               '(--constant-load)')
+        return {effect: why for effect in self.effects if EFFECTS[effect].through_pressure}
 
     def effect_parameters(self, effect: str) -> tuple[Parameter, ...]:
         """Parameters of a HAS effect (:mod:`exo_has_sim.diagnosis.effects`) or structure."""
@@ -545,6 +633,10 @@ class HasPlant(Plant):
                 level = float(values.get('load_force', self._load_guess))
                 load = level + self._rod_force[_delayed_indices(starts, horizon, 0)]
                 start_load = level + self._rod_force[starts]
+                if _LOAD_RAMP in values:  # a window load's slope (predict)
+                    ramp = float(values[_LOAD_RAMP]) * np.linspace(-1.0, 1.0, horizon)
+                    load = load + ramp[:, None]
+                    start_load = start_load + ramp[0]
             loads.append(load)
             states.append(self.initial_states(params, delay, start_load, starts))
         states_out = _integrate(np.repeat(np.stack(packed), windows, axis=0),

@@ -41,6 +41,10 @@ def summary(diagnosis: Diagnosis) -> str:
     for choice, others in diagnosis.rivals.items():
         lines.append(f'  indistinguishable from {choice} in these data: {", ".join(others)} '
                      f'({_missing(diagnosis)})')
+    if diagnosis.unidentifiable:
+        titles = ', '.join(effect_title(e) for e in diagnosis.unidentifiable)
+        lines.append(f'not identifiable from these signals, never named: {titles} '
+                     f'({next(iter(diagnosis.unidentifiable.values()))})')
     for output in diagnosis.plant.outputs:
         lines.append(f'validated {output} fit: nominal {fits["nominal"][output]:.2f} %, '
                      f'baseline {fits["baseline"][output]:.2f} %, extended '
@@ -130,6 +134,16 @@ def _markdown(diagnosis: Diagnosis, title: str | None) -> str:
         out.append('No effect of the library improves the validated prediction significantly: '
                    'the baseline with its re-estimated parameters explains the data as well '
                    'as any extension.')
+    if d.unidentifiable:
+        out += ['', '## What these signals cannot identify', '']
+        reasons: dict[str, list[str]] = {}
+        for effect, why in d.unidentifiable.items():
+            reasons.setdefault(why, []).append(f'{effect_title(effect)} (`{effect}`)')
+        out.extend(f'- {", ".join(effects)}: {why}.' for why, effects in reasons.items())
+        out += ['', 'Whatever these effects would explain, the unmeasured load explains as '
+                'well: the verdict does not choose between them. Each is still fitted on top '
+                'of what is named, and listed beside it above when it predicts the held-out '
+                'windows as well.']
     if d.limits:
         out += ['', '## What these data could miss: detection limits', '',
                 'Each effect left out, put into this record at growing sizes: its prediction '

@@ -47,6 +47,7 @@ from exo_has_sim.diagnosis.fitting import (
     robust_loss,
 )
 from exo_has_sim.diagnosis.plants import Plant
+from exo_has_sim.errors import FitError
 
 #: Significance level of the t-test across the validation windows.
 ALPHA = 0.01
@@ -258,14 +259,21 @@ def rank(plant: Plant, reference: Fit, reference_validation: Evaluation, named: 
             progress(f'  fitting {effect} jointly with '
                      f'{", ".join(p.name for p in reference.free)}')
         free = (*reference.free, *added)
-        fit = fit_parameters(plant, free, {}, windows.estimation_span, weights,
-                             initial=screened[effect][0])
+        sizes = {p.name: screened[effect][0][p.name] for p in added}
+        try:
+            fit = fit_parameters(plant, free, {}, windows.estimation_span, weights,
+                                 initial=screened[effect][0])
+        except FitError:
+            # The first-order projection can move the reference's values where the plant
+            # cannot be simulated (a soft oil and a fast motor): start from them unmoved,
+            # at the size screening chose, which it did simulate.
+            fit = fit_parameters(plant, free, {}, windows.estimation_span, weights,
+                                 initial=reference.values | sizes)
         if effect == order[0] and _strayed(plant, reference):
             # The reference's parameters strayed from nominal to absorb the effect: from
             # there the joint fit can stall in their valley (a bulk modulus pinned high by a
             # dead zone), so the likeliest effect's fit also starts from the nominal values,
             # and the better one wins.
-            sizes = {p.name: screened[effect][0][p.name] for p in added}
             again = fit_parameters(plant, free, {}, windows.estimation_span, weights,
                                    initial=reference.values | plant.nominal() | sizes)
             fit = again if again.cost < fit.cost else fit
@@ -298,6 +306,47 @@ def rivals(ranking: Sequence[Score]) -> list[str]:
     best = ranking[0]
     return [score.effect for score in ranking[1:]
             if score.significant and _paired_p(best.validation, score.validation) >= ALPHA]
+
+
+def hidden_rivals(plant: Plant, steps: Sequence[Sequence[Score]], baseline: Fit,
+                  baseline_validation: Evaluation, windows: Windows, weights: FloatArray,
+                  effects: Sequence[str], progress: Progress | None = None,
+                  ) -> dict[str, list[str]]:
+    """Effects the signals cannot identify that explain what a named choice explains.
+
+    Such an effect (:attr:`~exo_has_sim.diagnosis.plants.Plant.unidentifiable`) is never
+    named, but it may still produce what a named one is named for: in a record of the
+    position alone, friction moves the pressure at each reversal, and the leakage turns that
+    into lost motion, as a dead zone or a delay would. So each step's named choice is checked
+    against them: they are ranked on top of the step's reference as any effect, and one that
+    is significant and that the choice does not beat (:func:`rivals`'s test) is its rival.
+
+    Returns
+    -------
+    dict[str, list[str]]
+        Each named choice with its rivals among ``effects`` (only those that have any).
+
+    """
+    out: dict[str, list[str]] = {}
+    if not effects:
+        return out
+    reference, reference_validation = baseline, baseline_validation
+    named: list[str] = []
+    for step in steps:
+        best = step[0] if step else None
+        if best is None or not best.significant:
+            break
+        if progress:
+            progress(f'checking {best.effect} against what these signals cannot identify')
+        ranking = [score for score in rank(plant, reference, reference_validation, named,
+                                           effects, windows, weights, progress)
+                   if not score.screened]
+        found = [e for e in rivals([best, *ranking]) if e in effects]
+        if found:
+            out[best.effect] = found
+        named.append(best.effect)
+        reference, reference_validation = best.fit, best.validation
+    return out
 
 
 def _paired_p(better: Evaluation, other: Evaluation) -> float:

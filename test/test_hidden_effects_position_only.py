@@ -1,0 +1,97 @@
+"""Acceptance of ``exo-has diagnose`` on command and position alone (issue 12).
+
+The paper's rig logged the motor speed command and the position only (section 4.2), with the
+load unmeasured. Then an effect that acts through the rodless pressure (friction, a quadratic
+leakage, a cracked relief valve, entrained air) cannot be told from a load that varies, and
+the diagnosis must say so rather than guess; what stays identifiable is the flow path from
+the command to the pump. Draws of the two truth plants of this folder (as
+``test_hidden_effects.py`` makes them, 20 s each), written with the columns ``time``,
+``motor_speed_command``, ``position`` and ``reference`` only, diagnosed by the command.
+
+The stated rate, over these draws: no alarm without an effect; no cause named other than the
+hidden effect unless the hidden effect is reported indistinguishable from it (an effect that
+the signals cannot identify is still checked as a rival of what is named); every effect
+acting through the pressure reported unidentifiable, never named; every pump dead zone of the
+first plant named, within 25 % of its size (the second plant's, 11.8 rad/s on a knee's gait,
+is missed: bench/README.md has the rates over more draws). Transport delays are not
+asserted: without the motor speed, a delay of a few milliseconds and a slower speed loop
+predict the position alike, and each record's detection limits say how large a delay would
+have to be (bench/README.md, "Position only").
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+
+import numpy as np
+import pytest
+import second_truth_plant as sp
+import truth_plant as tp
+
+from exo_has_sim.diagnosis.cli import main
+from exo_has_sim.diagnosis.effects import EFFECTS
+
+#: Columns of a record as the paper's rig logged it.
+KEPT = ('time', 'motor_speed_command', 'position', 'reference')
+#: (plant, seed, effect): seeds of test_hidden_effects.py: effect-free draws (the walking
+#: knee gave a dead zone as a false alarm before each window had a load of its own), effects
+#: through the pressure (a 95 N friction in a squat makes lost motion at each reversal, as a
+#: delay does), and the first plant's dead zones.
+DRAWS = ((tp, 5000, 'none'), (tp, 5007, 'none'), (sp, 6000, 'none'),
+         (tp, 5008, 'coulomb_friction'), (tp, 5005, 'relief_valve'),
+         (tp, 5002, 'pump_deadzone'), (tp, 5009, 'pump_deadzone'))
+SIZE_TOLERANCE = 0.25
+
+
+def run_draw(task):
+    """Simulate one draw, keep the position-only columns, diagnose; return the JSON."""
+    plant_name, seed, effect, folder = task
+    plant = {tp.__name__: tp, sp.__name__: sp}[plant_name]
+    draw = plant.draw(seed, effect=effect, duration=20.0)
+    path = folder / f'position_only_{seed}.csv'
+    table = np.column_stack([draw.columns[name] for name in KEPT])
+    np.savetxt(path, table, fmt='%.17g', delimiter=',', header=','.join(KEPT), comments='')
+    out = folder / f'position_only_{seed}.json'
+    code = main([str(path), '--joint', draw.joint_type, '--load-mass', '50', '--json', str(out),
+                 '-q'])
+    assert code == 0
+    return {'seed': seed, 'effect': effect, 'size': draw.size,
+            'doc': json.loads(out.read_text())}
+
+
+@pytest.fixture(scope='module')
+def results(tmp_path_factory):
+    folder = tmp_path_factory.mktemp('position_only')
+    tasks = [(plant.__name__, seed, effect, folder) for plant, seed, effect in DRAWS]
+    # Spawned, not forked: the test process may hold rclpy's threads from earlier tests.
+    with multiprocessing.get_context('spawn').Pool(os.cpu_count() or 1) as pool:
+        rows = pool.map(run_draw, tasks, chunksize=1)
+    for row in rows:
+        print(f'{row["seed"]} {row["effect"]:<18} named {row["doc"]["causes"]} '
+              f'{row["doc"]["sizes"]}')
+    return rows
+
+
+def test_no_other_cause_is_named_unless_the_hidden_one_is_reported_beside_it(results):
+    wrong = [(r['seed'], r['effect'], r['doc']['causes']) for r in results
+             if set(r['doc']['causes']) - {r['effect']}
+             and r['effect'] not in r['doc']['indistinguishable']]
+    assert wrong == []
+    assert all(not r['doc']['causes'] for r in results if r['effect'] == 'none')
+
+
+def test_every_effect_through_the_pressure_is_reported_unidentifiable_not_named(results):
+    through = sorted(e for e, effect in EFFECTS.items() if effect.through_pressure)
+    for row in results:
+        assert sorted(row['doc']['unidentifiable']) == through
+        assert not set(row['doc']['causes']) & set(through)
+        assert not set(row['doc']['detection_limits']) & set(through)
+
+
+def test_every_dead_zone_is_named_within_25_percent(results):
+    for row in (r for r in results if r['effect'] == 'pump_deadzone'):
+        assert row['doc']['causes'] == ['pump_deadzone'], row['seed']
+        error = row['doc']['sizes']['pump_deadzone'] / row['size'] - 1.0
+        assert abs(error) <= SIZE_TOLERANCE, (row['seed'], error)
