@@ -493,7 +493,7 @@ class HasPlant(Plant):
         """
         from exo_has_sim.diagnosis.effects import EFFECTS
 
-        if self._p is not None or self._load is not None or self.constant_load:
+        if not self.window_load:  # the same records: pressure or load known, or constant
             return {}
         why = ('it acts on the motion only through the rodless pressure, and with neither '
                'pressure_a nor load_force measured a load that varies unmeasured would make '
