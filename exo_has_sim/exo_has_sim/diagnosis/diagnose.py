@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -314,9 +314,8 @@ def diagnose(plant: Plant, horizon: float = DEFAULT_HORIZON, burn_in: float = DE
                f'{", ".join(plant.effects)}')
         raise DiagnosisError(msg)
     unidentifiable = {e: why for e, why in plant.unidentifiable.items() if e in chosen}
-    if unidentifiable:
-        say(f'not identifiable from these signals: {", ".join(unidentifiable)} '
-            f'({next(iter(unidentifiable.values()))})')
+    for why, effects in by_reason(unidentifiable).items():
+        say(f'not identifiable from these signals: {", ".join(effects)} ({why})')
     chosen = tuple(e for e in chosen if e not in unidentifiable)
     windows = make_windows(m.samples, horizon_samples(horizon, m.period), plant.first_start,
                            round(burn_in / m.period))
@@ -420,6 +419,14 @@ def _signatures(plant: Plant, span: Span, evaluation: Evaluation) -> list[Signat
     if isinstance(plant, HasPlant):
         relief = plant.params.relief_pressure
     return signatures(features, rates, residuals, period, relief)
+
+
+def by_reason(unidentifiable: Mapping[str, str]) -> dict[str, list[str]]:
+    """Group the effects the signals cannot identify by their reason: reason -> effect ids."""
+    out: dict[str, list[str]] = {}
+    for effect, why in unidentifiable.items():
+        out.setdefault(why, []).append(effect)
+    return out
 
 
 def effect_title(effect: str) -> str:

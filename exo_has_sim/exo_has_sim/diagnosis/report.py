@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from exo_has_sim.diagnosis.diagnose import Diagnosis, effect_title
+from exo_has_sim.diagnosis.diagnose import Diagnosis, by_reason, effect_title
 from exo_has_sim.diagnosis.effects import EFFECTS
 from exo_has_sim.diagnosis.selection import ALPHA, MIN_GAIN
 
@@ -41,10 +41,9 @@ def summary(diagnosis: Diagnosis) -> str:
     for choice, others in diagnosis.rivals.items():
         lines.append(f'  indistinguishable from {choice} in these data: {", ".join(others)} '
                      f'({_missing(diagnosis)})')
-    if diagnosis.unidentifiable:
-        titles = ', '.join(effect_title(e) for e in diagnosis.unidentifiable)
-        lines.append(f'not identifiable from these signals, never named: {titles} '
-                     f'({next(iter(diagnosis.unidentifiable.values()))})')
+    for why, effects in by_reason(diagnosis.unidentifiable).items():
+        titles = ', '.join(effect_title(e) for e in effects)
+        lines.append(f'not identifiable from these signals, never named: {titles} ({why})')
     for output in diagnosis.plant.outputs:
         lines.append(f'validated {output} fit: nominal {fits["nominal"][output]:.2f} %, '
                      f'baseline {fits["baseline"][output]:.2f} %, extended '
@@ -136,10 +135,8 @@ def _markdown(diagnosis: Diagnosis, title: str | None) -> str:
                    'as any extension.')
     if d.unidentifiable:
         out += ['', '## What these signals cannot identify', '']
-        reasons: dict[str, list[str]] = {}
-        for effect, why in d.unidentifiable.items():
-            reasons.setdefault(why, []).append(f'{effect_title(effect)} (`{effect}`)')
-        out.extend(f'- {", ".join(effects)}: {why}.' for why, effects in reasons.items())
+        out.extend(f'- {", ".join(f"{effect_title(e)} (`{e}`)" for e in effects)}: {why}.'
+                   for why, effects in by_reason(d.unidentifiable).items())
         out += ['', 'Whatever these effects would explain, the unmeasured load explains as '
                 'well: the verdict does not choose between them. Each is still fitted on top '
                 'of what is named, and listed beside it above when it predicts the held-out '
