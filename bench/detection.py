@@ -23,6 +23,9 @@ noise) two sizes of the limit's ladder stronger and two weaker, and diagnosed in
 stated limit holds when the stronger is named and the weaker not. ``--sensors position``
 keeps only the command and the position (the paper's own logging, section 4.2).
 
+``--holdout N``: as ``--null``, on other seeds: a rule chosen on the null ensemble's draws
+is checked on draws it was not chosen on.
+
 ``--hidden`` diagnoses the 21 draws of test/test_hidden_effects.py (20 s each) and lists
 each outcome: named, missed, another cause named (with the hidden effect reported beside it
 or not), or, for an effect the signals cannot identify, nothing named.
@@ -59,6 +62,8 @@ DURATION = 30.0  # s
 LOAD_MASS = 50.0  # kg, both plants' default
 PLANTS = {'a': plant_a, 'b': plant_b}
 FIRST_NULL_SEED = 70000
+#: Effect-free draws apart from the null ensemble's, on which a rule chosen there is checked.
+FIRST_HOLDOUT_SEED = 75000
 FIRST_LIMIT_SEED = 80000
 FIRST_TWIN_SEED = 90000
 #: The hidden-effect test's draws (test/test_hidden_effects.py): plant, draws, first seed;
@@ -121,6 +126,9 @@ def diagnose_draw(task: Task) -> dict[str, Any]:
                        for effect, limit in doc.get('detection_limits', {}).items()},
             'ladders': {effect: limit['sizes']
                         for effect, limit in doc.get('detection_limits', {}).items()},
+            'leaders': [{key: step[0][key] for key in ('effect', 'cost_ratio', 'score',
+                                                       'p_value', 'significant')}
+                        for step in doc.get('steps', []) if step],
             'wall_s': round(wall, 1)}
 
 
@@ -135,15 +143,17 @@ def run_tasks(tasks: Sequence[Task],
     return results
 
 
-def null_ensemble(count: int, sensors: str, jobs: int) -> None:
-    """Measure the false-alarm rate over ``count`` effect-free draws."""
+def null_ensemble(count: int, sensors: str, jobs: int, first_seed: int = FIRST_NULL_SEED,
+                  name: str = 'null') -> None:
+    """Measure the false-alarm rate over ``count`` effect-free draws from ``first_seed``."""
     with tempfile.TemporaryDirectory() as folder:
-        tasks = [('ab'[i % 2], FIRST_NULL_SEED + i, 'none', None, sensors, folder, DURATION)
+        tasks = [('ab'[i % 2], first_seed + i, 'none', None, sensors, folder, DURATION)
                  for i in range(count)]
         results = sorted(run_tasks(tasks, jobs), key=lambda r: r['seed'])
     alarms = [r for r in results if r['causes']]
     failed = [r for r in results if r['code'] != 0]
-    lines = [f'bench/detection.py --null {count} --sensors {sensors}: {describe_machine()}',
+    option = '--null' if first_seed == FIRST_NULL_SEED else '--holdout'
+    lines = [f'bench/detection.py {option} {count} --sensors {sensors}: {describe_machine()}',
              f'false alarms: {len(alarms)} of {len(results)} effect-free draws '
              f'({100.0 * len(alarms) / len(results):.1f} %); diagnoses that failed: '
              f'{len(failed)}; wall per diagnosis median '
@@ -175,7 +185,7 @@ def null_ensemble(count: int, sensors: str, jobs: int) -> None:
                       f'{max(found):.3g}' if found else 'none found')
             lines.append(f'  {effect}, plant {plant}: {spread}; not named at the strongest '
                          f'in {values.count(None)} of {len(values)}')
-    write_results(f'detection_null_{sensors}', {'draws': results}, lines)
+    write_results(f'detection_{name}_{sensors}', {'draws': results}, lines)
 
 
 def detection_limits(draws: int, sensors: str, jobs: int) -> None:
@@ -309,6 +319,9 @@ def main() -> None:
     mode = parser.add_mutually_exclusive_group(required=True)
     mode.add_argument('--null', type=int, metavar='N', help='effect-free draws')
     mode.add_argument('--limits', action='store_true', help='detection limit of each effect')
+    mode.add_argument('--holdout', type=int, metavar='N',
+                      help="effect-free draws of seeds apart from --null's, to check a rule "
+                      'chosen on those')
     mode.add_argument('--twins', type=int, metavar='N',
                       help='effect-free draws whose stated limits are checked on their twins')
     mode.add_argument('--hidden', action='store_true',
@@ -319,6 +332,8 @@ def main() -> None:
     args = parser.parse_args()
     if args.null is not None:
         null_ensemble(args.null, args.sensors, args.jobs)
+    elif args.holdout is not None:
+        null_ensemble(args.holdout, args.sensors, args.jobs, FIRST_HOLDOUT_SEED, 'holdout')
     elif args.twins is not None:
         twins(args.twins, args.sensors, args.jobs)
     elif args.hidden:

@@ -38,7 +38,8 @@ KEPT = ('time', 'motor_speed_command', 'position', 'reference')
 #: (plant, seed, effect): seeds of test_hidden_effects.py: effect-free draws (the walking
 #: knee gave a dead zone as a false alarm before each window had a load of its own), effects
 #: through the pressure (a 95 N friction in a squat makes lost motion at each reversal, as a
-#: delay does), and the first plant's dead zones.
+#: dead zone does: a 3.6 rad/s one is named, with the friction reported beside it), and the
+#: first plant's dead zones.
 DRAWS = ((tp, 5000, 'none'), (tp, 5007, 'none'), (sp, 6000, 'none'),
          (tp, 5008, 'coulomb_friction'), (tp, 5005, 'relief_valve'),
          (tp, 5002, 'pump_deadzone'), (tp, 5009, 'pump_deadzone'))

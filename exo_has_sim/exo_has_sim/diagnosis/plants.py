@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 from numba import njit
+from numpy.polynomial import Legendre
 from numpy.typing import NDArray
 from scipy.linalg import expm
 from scipy.signal import lfilter, savgol_filter
@@ -84,11 +85,18 @@ DEFAULT_UNCERTAINTY: dict[str, float | None] = {
 SECOND_ORDER_GRID = (0.4, 0.7, 1.0, 1.5)
 #: Motor speed and spool histories kept (one per delay and time constant a fit tried).
 DRIVE_CACHE = 32
-#: Load step [share of the peak thrust] of the second simulation that gives a window's
-#: sensitivity to an unmeasured load (:meth:`HasPlant.predict`).
+#: Load step [share of the peak thrust] of the simulations that give a window's sensitivity
+#: to an unmeasured load (:meth:`HasPlant.predict`).
 WINDOW_LOAD_STEP = 0.2
-#: Candidate key of the load ramp across each window [N, at its ends] (internal: predict).
-_LOAD_RAMP = '_window_load_ramp'
+#: Degree of the polynomial in time that an unmeasured load takes across each window: a level,
+#: a slope and a bend. A squat's load swings with the depth at 0.5 Hz, a third of a period
+#: per window, and the bend a line leaves of it is matched by a spurious delay of 11-15 ms
+#: (bench/README.md, "Position only").
+WINDOW_LOAD_DEGREE = 2
+#: Candidate keys of a window load's shape (internal: predict): the degree of the Legendre
+#: polynomial across the window, and its amplitude [N, at the window's end].
+_LOAD_SHAPE_DEGREE = '_window_load_degree'
+_LOAD_SHAPE_SIZE = '_window_load_size'
 #: Most joints (candidate x window pairs) integrated in one call, which bounds the memory of
 #: the state history (a call holds horizon x joints x model.N_STATE floats).
 MAX_JOINTS = 2048
@@ -422,32 +430,32 @@ class HasPlant(Plant):
     def predict(self, candidates: Sequence[Candidate], span: Span) -> FloatArray:
         """Predict the outputs at the scored samples, a window's load its own if unmeasured.
 
-        With :attr:`window_load`, each window takes the load, a level and a slope over the
-        window, that fits its measured position best, as it takes its initial state from the
-        data: the prediction at the load guess is moved along the window's sensitivities to
-        the level and to the slope (two more simulations, the load raised by
-        :data:`WINDOW_LOAD_STEP` of the peak thrust, once throughout and once as a ramp from
-        minus to plus that across the window, the start state with it) by the least-squares
-        step, linear in the load as the leakage and the compression are in the pressure.
+        With :attr:`window_load`, each window takes the load, a polynomial in time of degree
+        :data:`WINDOW_LOAD_DEGREE` across the window, that fits its measured position best,
+        as it takes its initial state from the data: the prediction at the load guess is
+        moved along the window's sensitivities to each Legendre term (one more simulation
+        per term, the load raised by :data:`WINDOW_LOAD_STEP` of the peak thrust times the
+        term, the start state with it) by the least-squares step, linear in the load as the
+        leakage and the compression are in the pressure.
         """
         predicted = super().predict(candidates, span)
         if not self.window_load:
             return predicted
         step = WINDOW_LOAD_STEP * self.params.peak_thrust
-        pushed = super().predict([{**c, 'load_force': self._load_guess + step}
-                                  for c in candidates]
-                                 + [{**c, _LOAD_RAMP: step} for c in candidates], span)
-        changes = np.stack([pushed[:len(candidates)] - predicted,
-                            pushed[len(candidates):] - predicted], axis=-1)
+        terms = WINDOW_LOAD_DEGREE + 1
+        shaped = [{**c, _LOAD_SHAPE_DEGREE: float(degree), _LOAD_SHAPE_SIZE: step}
+                  for degree in range(terms) for c in candidates]
+        pushed = super().predict(shaped, span).reshape(terms, *predicted.shape)
+        changes = np.moveaxis(pushed - predicted[None], 0, -1)  # (..., horizon, output, term)
         error = self.measured(span)[None, ..., 0] - predicted[..., 0]
-        basis = changes[..., 0, :]  # position's sensitivities, (..., horizon, 2)
+        basis = changes[..., 0, :]  # the position's sensitivities, (..., horizon, term)
         normal = np.einsum('...ki,...kj->...ij', basis, basis)
         right = np.einsum('...ki,...k->...i', basis, error)
         # A window where the load does not move the position (cavitation, a stop) keeps
         # the guess: the ridge is negligible against any sensitivity that counts.
         ridge = 1e-12 * np.trace(normal, axis1=-2, axis2=-1)[..., None, None] + 1e-300
         with np.errstate(invalid='ignore', over='ignore'):
-            gains = np.linalg.solve(normal + ridge * np.eye(2), right[..., None])[..., 0]
+            gains = np.linalg.solve(normal + ridge * np.eye(terms), right[..., None])[..., 0]
         gains = np.where(np.isfinite(gains), gains, 0.0)
         return np.asarray(predicted + np.einsum('...hoi,...i->...ho', changes, gains),
                           dtype=float)
@@ -633,10 +641,11 @@ class HasPlant(Plant):
                 level = float(values.get('load_force', self._load_guess))
                 load = level + self._rod_force[_delayed_indices(starts, horizon, 0)]
                 start_load = level + self._rod_force[starts]
-                if _LOAD_RAMP in values:  # a window load's slope (predict)
-                    ramp = float(values[_LOAD_RAMP]) * np.linspace(-1.0, 1.0, horizon)
-                    load = load + ramp[:, None]
-                    start_load = start_load + ramp[0]
+                if _LOAD_SHAPE_DEGREE in values:  # a term of a window's own load (predict)
+                    term = Legendre.basis(int(values[_LOAD_SHAPE_DEGREE]))
+                    shape = values[_LOAD_SHAPE_SIZE] * term(np.linspace(-1.0, 1.0, horizon))
+                    load = load + shape[:, None]
+                    start_load = start_load + shape[0]
             loads.append(load)
             states.append(self.initial_states(params, delay, start_load, starts))
         states_out = _integrate(np.repeat(np.stack(packed), windows, axis=0),
