@@ -175,8 +175,12 @@ class Diagnosis:
 
     @property
     def indistinguishable(self) -> list[str]:
-        """Effects and structures that explain the data as well as one chosen."""
-        return [e for others in self.rivals.values() for e in others]
+        """Effects and structures that explain the data as well as one chosen, each once.
+
+        Two choices can share a rival (an unidentifiable relief valve beside a dead zone and
+        beside the second-order loop taken after it); :attr:`rivals` keeps them per choice.
+        """
+        return list(dict.fromkeys(e for others in self.rivals.values() for e in others))
 
     @property
     def ranking(self) -> list[Score]:
