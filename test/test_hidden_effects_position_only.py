@@ -13,8 +13,8 @@ bench/detection.py, 1 alarm, and none on 40 more); no cause named other than the
 effect unless the hidden effect is reported indistinguishable from it (an effect that the
 signals cannot identify is still checked as a rival of what is named); every effect acting
 through the pressure reported unidentifiable, never named; every pump dead zone of the first
-plant named, within 25 % of its size (the second plant's, 11.8 rad/s on a knee's gait, came
-out 25.5 % high: bench/README.md, "Position only"). Transport delays are not
+plant named, within 25 % of its size (here 5002; the second plant's, 11.8 rad/s on a knee's
+gait, came out 25.5 % high: bench/README.md, "Position only"). Transport delays are not
 asserted: without the motor speed, a delay of a few milliseconds and a slower speed loop
 predict the position alike, and each record's detection limits say how large a delay would
 have to be (bench/README.md, "Position only").
@@ -39,11 +39,12 @@ KEPT = ('time', 'motor_speed_command', 'position', 'reference')
 #: (plant, seed, effect): seeds of test_hidden_effects.py: effect-free draws (the walking
 #: knee gave a dead zone as a false alarm before each window had a load of its own), effects
 #: through the pressure (a 95 N friction in a squat makes lost motion at each reversal, as a
-#: dead zone does: a 3.6 rad/s one is named, with the friction reported beside it), and the
-#: first plant's dead zones.
+#: dead zone does: a 3.6 rad/s one is named, with the friction reported beside it), and a
+#: dead zone of the first plant (its other, 5009, named at -0.1 % in bench/detection.py
+#: --hidden, is left to the bench: its rival checks take 2.5 min, a sixth of the suite's time).
 DRAWS = ((tp, 5000, 'none'), (tp, 5007, 'none'), (sp, 6000, 'none'),
          (tp, 5008, 'coulomb_friction'), (tp, 5005, 'relief_valve'),
-         (tp, 5002, 'pump_deadzone'), (tp, 5009, 'pump_deadzone'))
+         (tp, 5002, 'pump_deadzone'))
 SIZE_TOLERANCE = 0.25
 
 
