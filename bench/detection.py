@@ -152,8 +152,7 @@ def null_ensemble(count: int, sensors: str, jobs: int, first_seed: int = FIRST_N
         results = sorted(run_tasks(tasks, jobs), key=lambda r: r['seed'])
     alarms = [r for r in results if r['causes']]
     failed = [r for r in results if r['code'] != 0]
-    option = '--null' if first_seed == FIRST_NULL_SEED else '--holdout'
-    lines = [f'bench/detection.py {option} {count} --sensors {sensors}: {describe_machine()}',
+    lines = [f'bench/detection.py --{name} {count} --sensors {sensors}: {describe_machine()}',
              f'false alarms: {len(alarms)} of {len(results)} effect-free draws '
              f'({100.0 * len(alarms) / len(results):.1f} %); diagnoses that failed: '
              f'{len(failed)}; wall per diagnosis median '

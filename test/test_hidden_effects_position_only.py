@@ -41,7 +41,7 @@ KEPT = ('time', 'motor_speed_command', 'position', 'reference')
 #: through the pressure (a 95 N friction in a squat makes lost motion at each reversal, as a
 #: dead zone does: a 3.6 rad/s one is named, with the friction reported beside it), and a
 #: dead zone of the first plant (its other, 5009, named at -0.1 % in bench/detection.py
-#: --hidden, is left to the bench: its rival checks take 2.5 min, a sixth of the suite's time).
+#: --hidden, is left to the bench: its diagnosis, rival checks included, takes 2.5 min).
 DRAWS = ((tp, 5000, 'none'), (tp, 5007, 'none'), (sp, 6000, 'none'),
          (tp, 5008, 'coulomb_friction'), (tp, 5005, 'relief_valve'),
          (tp, 5002, 'pump_deadzone'))

@@ -245,6 +245,7 @@ def rank(plant: Plant, reference: Fit, reference_validation: Evaluation, named: 
                                  if screened[e][1] <= (1.0 - SCREEN_GAIN) * reference_cost
                                  and screened[e][1] <= RIVAL_FACTOR * best]
     rest = [e for e in effects if e not in joint]
+    strayed = _strayed(plant, reference)
     validations = evaluate(plant, [screened[e][0] for e in rest], windows.validation_span,
                            weights) if rest else []
     ranking = []
@@ -270,7 +271,7 @@ def rank(plant: Plant, reference: Fit, reference_validation: Evaluation, named: 
             # at the size screening chose, which it did simulate.
             fit = fit_parameters(plant, free, {}, windows.estimation_span, weights,
                                  initial=reference.values | sizes)
-        if (every or effect == order[0]) and _strayed(plant, reference):
+        if (every or effect == order[0]) and strayed:
             # The reference's parameters strayed from nominal to absorb the effect: from
             # there the joint fit can stall in their valley (a bulk modulus pinned high by a
             # dead zone), so the likeliest effect's fit also starts from the nominal values,
@@ -348,9 +349,8 @@ def hidden_rivals(plant: Plant, steps: Sequence[Sequence[Score]], baseline: Fit,
             progress(f'checking {best.effect} against what these signals cannot identify')
         ranking = rank(plant, reference, reference_validation, named, effects, windows,
                        weights, progress, every=True)
-        found = [score.effect for score in ranking
-                 if score.effect in effects and not score.screened and score.ratio < 1.0
-                 and _paired_p(best.validation, score.validation) >= ALPHA]
+        found = [score.effect for score in ranking  # every one fitted jointly
+                 if score.ratio < 1.0 and _paired_p(best.validation, score.validation) >= ALPHA]
         if found:
             out[best.effect] = found
         named.append(best.effect)
