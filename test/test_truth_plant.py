@@ -33,7 +33,7 @@ def steady_velocity(params: tp.HasParameters, command: float, load: float,
                     effects: dict[str, float] | None = None) -> tuple[float, float]:
     """Steady extension velocity [m/s] and pressure [Pa] at a constant command, engaged.
 
-    Flow balance ``D_p n_pump = A_e v + L_n p + L_n2 p^2 + G_crack (p - p_crack)^+`` with the
+    Flow balance ``D_p n_pump = A_A v + L_n p + L_n2 p^2 + G_crack (p - p_crack)^+`` with the
     force balance ``A_A p = F + B v + F_c`` (v >> 1 mm/s), solved by fixed-point iteration.
     """
     e = effects or {}
@@ -64,10 +64,11 @@ def test_steady_extension_velocity_is_k_n_times_the_volumetric_efficiency(hip):
     k = hip.pump_displacement / hip.flow_area
     assert_allclose(result.velocity[-20:], k * command * efficiency, rtol=1e-6)
     assert_allclose(result.clean['pressure_a'][-20:], pressure, rtol=1e-6)
-    # Eq. 14 (K with leakage and damping) gives the same velocity without load.
+    # Eq. 14 (K with leakage and damping, A_A for the paper's averaged area) gives the same
+    # velocity without load.
     unloaded = run_open_loop(hip, {}, command, load=0.0)
-    eq14 = 2 * hip.pump_displacement * hip.area_a / (
-        2 * hip.pump_leakage * hip.damping + (hip.area_a + hip.area_b) * hip.area_a)
+    eq14 = hip.pump_displacement * hip.area_a / (
+        hip.pump_leakage * hip.damping + hip.area_a * hip.area_a)
     assert_allclose(unloaded.velocity[-1], eq14 * command, rtol=1e-6)
 
 

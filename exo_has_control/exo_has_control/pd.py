@@ -2,10 +2,11 @@
 
 The paper closes the loop on the cylinder position with a PD law, P = 35 and D = 15, without
 units (section 5.1); exo_has_sim's design check reads them as P = 35 (rad/s) of motor speed per
-mm of position error, which gives 2.83 Hz of closed-loop bandwidth against the paper's 2.54 Hz,
+mm of position error, which gives 2.34 Hz of closed-loop bandwidth against the paper's 2.54 Hz,
 and D = 15 (rad/s) per (m/s) of velocity error. The paper tuned its PD for the tracking tests
 without giving the values; we add a velocity feedforward through the model's velocity gain K
-(Eq. 14), so that the position error need not drive the whole motion. The velocity is the
+(Eq. 14 with the rodless area A_A, as the model's flow balance has it), so that the position
+error need not drive the whole motion. The velocity is the
 backward difference of the sampled positions: the paper's sensor measures position only.
 """
 
@@ -57,7 +58,12 @@ class PdGains:
 
     @classmethod
     def paper(cls, params: HasParameters, feedforward: bool = True) -> PdGains:
-        """Return the paper's P and D, with the feedforward 1/K (Eq. 14) unless disabled."""
+        """Return the paper's P and D, with the feedforward 1/K unless disabled.
+
+        K is Eq. 14 with the rodless area of the model's flow balance
+        (:attr:`~exo_has_sim.parameters.HasParameters.flow_area`) in the place of the paper's
+        average: the velocity the pump's flow gives the cylinder in steady motion.
+        """
         kff = 1.0 / linear.velocity_gain(params) if feedforward else 0.0
         return cls(PAPER_KP, PAPER_KD, kff, params.motor_speed_max)
 

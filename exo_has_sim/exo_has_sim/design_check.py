@@ -61,16 +61,15 @@ def design_check(params: HasParameters) -> list[Row]:
     k = linear.velocity_gain(params)
     n_max = params.motor_speed_max
     speed = k * n_max
-    circuit_speed = params.pump_displacement * n_max / params.area_a
-    circuit = 'meets it too' if circuit_speed >= params.no_load_speed else 'falls short'
+    printed = linear.velocity_gain(params, linear.averaged_flow_area(params)) * n_max
     rows.append(Row(
         'no_load_speed', 'no-load extension speed at 4000 r/min (Eq. 14, K n)', 'm/s',
         params.no_load_speed, speed,
         f'{_meets(speed >= params.no_load_speed)} the required {params.no_load_speed} m/s. '
-        'Eq. 14 divides the pump flow by the averaged area (A_A + A_B)/2 of Eq. 10, which adds '
-        "the two chambers' balances as if the rod side returned to the pump; the paper's own "
-        'Eq. 4, with the rod side open to the tank, gives D_p n / A_A = '
-        f'{circuit_speed:.3f} m/s, which {circuit}. The model follows Eq. 10'))
+        'The model fills the rodless chamber at A_A v (Eq. 4, the rod side open to the tank); '
+        'Eq. 14 as printed divides the pump flow by the averaged area (A_A + A_B)/2 of Eq. 10, '
+        "which adds the two chambers' balances as if the rod side returned to the pump, and "
+        f'gives {printed:.3f} m/s'))
     pressure = params.peak_thrust / params.area_a
     rows.append(Row(
         'pressure_for_peak_thrust', 'rodless pressure for the 1770 N peak thrust', 'Pa',

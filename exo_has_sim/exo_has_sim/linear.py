@@ -3,6 +3,11 @@
 Transfer functions are ``(num, den)`` pairs of polynomial coefficients in s, highest power first.
 Eq. 12 gives x/n_p [m per rad/s]; the paper's identified Eq. 15 is given as printed, in the
 paper's (unstated) units.
+
+Eqs. 12-14 take the area of the flow balance as ``flow_area``: by default the model's,
+:attr:`~exo_has_sim.parameters.HasParameters.flow_area` (A_A, Eq. 4), which makes them the
+linearisation of :mod:`exo_has_sim.model`; the paper prints them with the average of Eq. 10,
+:func:`averaged_flow_area`.
 """
 
 from __future__ import annotations
@@ -49,36 +54,51 @@ def _volume(params: HasParameters, position: float) -> float:
     return params.dead_volume + params.area_a * position
 
 
-def eq12(params: HasParameters, position: float | None = None) -> TransferFunction:
+def averaged_flow_area(params: HasParameters) -> float:
+    """Return the paper's flow area (A_A + A_B) / 2 [m^2] (Eq. 10), as it prints Eqs. 12-14."""
+    return 0.5 * (params.area_a + params.area_b)
+
+
+def _flow_area(params: HasParameters, flow_area: float | None) -> float:
+    return params.flow_area if flow_area is None else flow_area
+
+
+def eq12(params: HasParameters, position: float | None = None,
+         flow_area: float | None = None) -> TransferFunction:
     """Eq. 12, x/n_p, with V_A the rodless volume at ``position`` (default mid stroke).
 
     ``x/n_p = (A_A E D_p / (V M)) / (s^3 + (E L_n / V + B / M) s^2
-    + (L_n E B / (V M) + A_A E (A_A + A_B) / (2 V M)) s)``.
+    + (L_n E B / (V M) + A_A E A_f / (V M)) s)`` with ``A_f`` the ``flow_area`` [m^2] (default
+    the model's; the paper prints :func:`averaged_flow_area`).
     """
     x = params.stroke / 2.0 if position is None else position
     volume = _volume(params, x)
     e, m, b, ln = params.bulk_modulus, params.moving_mass, params.damping, params.pump_leakage
-    a_a, a_b = params.area_a, params.area_b
+    a_a, a_f = params.area_a, _flow_area(params, flow_area)
     gain = a_a * e * params.pump_displacement / (volume * m)
     den = np.array([1.0, e * ln / volume + b / m,
-                    ln * e * b / (volume * m) + a_a * e * (a_a + a_b) / (2.0 * volume * m), 0.0])
+                    ln * e * b / (volume * m) + a_a * e * a_f / (volume * m), 0.0])
     return TransferFunction(np.array([gain]), den)
 
 
-def natural_frequency(params: HasParameters, position: float | None = None) -> float:
-    """Eq. 13, omega_n [rad/s] of the velocity response."""
+def natural_frequency(params: HasParameters, position: float | None = None,
+                      flow_area: float | None = None) -> float:
+    """Eq. 13, omega_n [rad/s] of the velocity response (``flow_area`` as for :func:`eq12`)."""
     x = params.stroke / 2.0 if position is None else position
     volume = _volume(params, x)
-    term = params.pump_leakage * params.damping + (params.area_a + params.area_b) \
-        * params.area_a / 2.0
+    term = params.pump_leakage * params.damping \
+        + _flow_area(params, flow_area) * params.area_a
     return math.sqrt(term * params.bulk_modulus / (volume * params.moving_mass))
 
 
-def velocity_gain(params: HasParameters) -> float:
-    """Eq. 14, K [m/s per rad/s]: steady extension velocity per pump speed, without load."""
+def velocity_gain(params: HasParameters, flow_area: float | None = None) -> float:
+    """Eq. 14, K [m/s per rad/s]: steady extension velocity per pump speed, without load.
+
+    ``K = D_p A_A / (L_n B + A_f A_A)``, ``flow_area`` as for :func:`eq12`.
+    """
     a_a = params.area_a
-    return 2.0 * params.pump_displacement * a_a / (
-        2.0 * params.pump_leakage * params.damping + (a_a + params.area_b) * a_a)
+    return params.pump_displacement * a_a / (
+        params.pump_leakage * params.damping + _flow_area(params, flow_area) * a_a)
 
 
 def eq15() -> TransferFunction:

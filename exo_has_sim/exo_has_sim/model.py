@@ -14,11 +14,13 @@ check the mass balance:
   turns, the chamber's while in assist (section 2.3.3, :func:`spool_drive`);
 - ``void`` volume of the vapour pocket in the rodless chamber [m^3] (see below).
 
-Flow balance of the rodless chamber, the paper's Eq. 10 made dynamic:
-``(V_A + A_A x) / E * dp/dt = s D_p n_p - s (L_n p + L_n2 p|p|) - L_c p - A_e v - Q_relief
-- (1 - s) G_free p`` with ``A_e = (A_A + A_B) / 2``, the flow area of the paper's averaged
-balance (Eq. 10), which makes the linearisation at mid stroke exactly Eq. 12 and the steady
-velocity K n of Eq. 14. Force balance, Eq. 8 with the load force and end stops:
+Flow balance of the rodless chamber, the paper's Eqs. 2, 4 and 6 with the rod side at the tank:
+``(V_A + A_A x) / E * dp/dt = s D_p n_p - s (L_n p + L_n2 p|p|) - L_c p - A_A v - Q_relief
+- (1 - s) G_free p``. The motion's flow is ``A_A v`` (Eq. 4, and
+:attr:`~exo_has_sim.parameters.HasParameters.flow_area`), not the average ``(A_A + A_B) / 2``
+of the paper's Eq. 10, so the linearisation at mid stroke is Eq. 12 and the steady velocity
+K n is Eq. 14 with A_A in the place of that average (:mod:`exo_has_sim.linear`). Force
+balance, Eq. 8 with the load force and end stops:
 ``(M_a + M_L) dv/dt = A_A p - B v - F_friction - F_load + F_stop``.
 
 A cavitation floor holds ``p_A`` at the cavitation pressure while the balance would take it

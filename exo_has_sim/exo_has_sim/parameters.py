@@ -161,8 +161,19 @@ class HasParameters:
 
     @property
     def flow_area(self) -> float:
-        """Area of the paper's flow balance, (A_A + A_B) / 2 [m^2] (Eq. 10)."""
-        return 0.5 * (self.area_a + self.area_b)
+        """Area whose motion the rodless chamber's flow balance counts [m^2]: A_A (Eq. 4).
+
+        The rodless chamber fills and empties at ``A_A v`` whatever the rod side does: in the
+        paper's circuit the rod side returns to the tank and the flow matching valve makes up
+        the pump's inlet from it (2.2, 2.3.3). The paper's Eq. 10 divides by the average
+        ``(A_A + A_B) / 2`` instead, having added the rod side's balance as if it fed the pump
+        (:mod:`exo_has_sim.linear` keeps its Eqs. 12-14 as printed). Data cannot tell the two
+        apart, since scaling every flow alike changes no prediction but through the nominal
+        pump displacement; what they do change is the size of a flow law that a diagnosis
+        names (a quadratic leakage, entrained air), which comes out in proportion to this
+        area (bench/README.md, "The flow area").
+        """
+        return self.area_a
 
     @property
     def moving_mass(self) -> float:

@@ -20,15 +20,23 @@ def test_the_linearised_model_matches_eq12_from_01_to_20_hz_at_mid_stroke(joint,
     assert np.max(np.abs(np.degrees(np.angle(linearised / reference)))) < 2.0
 
 
-def test_eq13_and_eq14_are_the_coefficients_of_eq12():
+@pytest.mark.parametrize('flow_area', [None, 1.2e-4])
+def test_eq13_and_eq14_are_the_coefficients_of_eq12(flow_area):
     params = load_parameters('hip')
-    tf = linear.eq12(params)
-    omega = linear.natural_frequency(params)
+    tf = linear.eq12(params, flow_area=flow_area)
+    omega = linear.natural_frequency(params, flow_area=flow_area)
     assert_allclose(tf.den[2], omega ** 2, rtol=1e-12)
-    assert_allclose(tf.num[0] / tf.den[2], linear.velocity_gain(params), rtol=1e-12)
-    lossless = params.replace(pump_leakage=0.0)
+    assert_allclose(tf.num[0] / tf.den[2], linear.velocity_gain(params, flow_area),
+                    rtol=1e-12)
+
+
+def test_eq14_divides_by_the_rodless_area_and_as_printed_by_the_averaged_one():
+    lossless = load_parameters('hip').replace(pump_leakage=0.0)
     assert_allclose(linear.velocity_gain(lossless),
-                    lossless.pump_displacement / lossless.flow_area, rtol=1e-12)
+                    lossless.pump_displacement / lossless.area_a, rtol=1e-12)
+    printed = linear.velocity_gain(lossless, linear.averaged_flow_area(lossless))
+    assert_allclose(printed, 2.0 * lossless.pump_displacement
+                    / (lossless.area_a + lossless.area_b), rtol=1e-12)
 
 
 def test_eq15_is_the_papers_identified_model():

@@ -36,7 +36,9 @@ def test_the_fast_simulator_agrees_with_solve_ivp_over_10_s_of_walking(effects):
     gains = np.array([[35e3, 15.0, 1.0 / linear.velocity_gain(params)]])
     closed = simulate_closed_loop([params], y0[None, :], x_ref[:, None], v_ref[:, None], loads,
                                   gains, PERIOD)
-    assert np.sqrt(np.mean((closed.position[1:, 0] - x_ref) ** 2)) < 0.003  # it walks
+    # It walks: this walk asks up to 0.26 m/s, beyond the 0.17 m/s of the top motor speed,
+    # so the commands saturate a fifth of the time and the error peaks there.
+    assert np.sqrt(np.mean((closed.position[1:, 0] - x_ref) ** 2)) < 0.005
     # Replay the loop's commands open loop, so both integrators see the same inputs.
     commands = closed.commands[:, 0]
     fast = simulate_open_loop([params], y0[None, :], commands[:, None], loads, PERIOD)
