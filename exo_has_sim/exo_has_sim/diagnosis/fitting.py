@@ -172,24 +172,6 @@ def evaluate(plant: Plant, candidates: Sequence[Mapping[str, float]], span: Span
     return [Evaluation(p, measured, weights) for p in predicted]
 
 
-def evaluate_linearised(plant: Plant, base: Mapping[str, float],
-                        candidates: Sequence[Mapping[str, float]], span: Span,
-                        weights: FloatArray) -> list[Evaluation] | None:
-    """Evaluate candidates near ``base`` for a Jacobian (:meth:`Plant.predict_linearised`).
-
-    None when the plant's plain predictions serve, or when a candidate diverged (the plain
-    evaluation then finds which).
-    """
-    try:
-        predicted = plant.predict_linearised(base, candidates, span)
-    except SimulationError:
-        return None
-    if predicted is None:
-        return None
-    measured = plant.measured(span)
-    return [Evaluation(p, measured, weights) for p in predicted]
-
-
 def fit_parameters(plant: Plant, free: Sequence[Parameter], fixed: Mapping[str, float],
                    span: Span, weights: FloatArray,
                    initial: Mapping[str, float] | None = None, max_iterations: int = 12,
@@ -252,11 +234,6 @@ def fit_parameters(plant: Plant, free: Sequence[Parameter], fixed: Mapping[str, 
             values[p.name] = p.from_search(float(zi))
         return values
 
-    def residuals(z: FloatArray, evaluation: Evaluation) -> FloatArray:
-        r = evaluation.residuals.ravel()
-        r = np.where(np.isfinite(r), r, 1e3)  # a diverged candidate: a large residual
-        return np.concatenate((r, prior_residuals(z))) if with_prior else r
-
     def residual_batch(points: Sequence[FloatArray]) -> list[FloatArray]:
         count[0] += len(points)
         found = evaluate(plant, [candidate(z) for z in points], span, weights)
@@ -264,19 +241,13 @@ def fit_parameters(plant: Plant, free: Sequence[Parameter], fixed: Mapping[str, 
         if len(cache) > 2 * len(free) + 4:  # only the latest point and its Jacobian matter
             cache.clear()
         for z, evaluation in zip(points, found, strict=True):
-            cache[z.tobytes()] = residuals(z, evaluation)
-            out.append(cache[z.tobytes()])
+            r = evaluation.residuals.ravel()
+            r = np.where(np.isfinite(r), r, 1e3)  # a diverged candidate: a large residual
+            if with_prior:
+                r = np.concatenate((r, prior_residuals(z)))
+            cache[z.tobytes()] = r
+            out.append(r)
         return out
-
-    def linearised_batch(base: FloatArray,
-                         points: Sequence[FloatArray]) -> list[FloatArray] | None:
-        # Not cached: these are residuals for differences only (Plant.predict_linearised).
-        found = evaluate_linearised(plant, candidate(base), [candidate(z) for z in points],
-                                    span, weights)
-        if found is None:
-            return None
-        count[0] += len(points)
-        return [residuals(z, evaluation) for z, evaluation in zip(points, found, strict=True)]
 
     def fun(z: FloatArray) -> FloatArray:
         key = z.tobytes()
@@ -289,12 +260,7 @@ def fit_parameters(plant: Plant, free: Sequence[Parameter], fixed: Mapping[str, 
             step = JACOBIAN_STEP if z[i] + JACOBIAN_STEP <= upper[i] else -JACOBIAN_STEP
             steps.append(step)
         points = [z + np.eye(len(z))[i] * steps[i] for i in range(len(z))]
-        near = linearised_batch(z, [z, *points])
-        if near is not None:
-            base, rows = near[0], near[1:]
-        else:
-            rows = residual_batch(points)
-        columns = [(r - base) / s for r, s in zip(rows, steps, strict=True)]
+        columns = [(r - base) / s for r, s in zip(residual_batch(points), steps, strict=True)]
         jacobians.clear()  # the last one is kept for the intervals
         jacobians[z.tobytes()] = np.column_stack(columns)
         return jacobians[z.tobytes()]

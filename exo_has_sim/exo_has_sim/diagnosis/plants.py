@@ -93,6 +93,10 @@ WINDOW_LOAD_STEP = 0.2
 #: per window, and the bend a line leaves of it is matched by a spurious delay of 11-15 ms
 #: (bench/README.md, "Position only").
 WINDOW_LOAD_DEGREE = 2
+#: Candidate keys of a window load's shape (internal: predict): the degree of the Legendre
+#: polynomial across the window, and its amplitude [N, at the window's end].
+_LOAD_SHAPE_DEGREE = '_window_load_degree'
+_LOAD_SHAPE_SIZE = '_window_load_size'
 #: Most joints (candidate x window pairs) integrated in one call, which bounds the memory of
 #: the state history (a call holds horizon x joints x model.N_STATE floats).
 MAX_JOINTS = 2048
@@ -289,17 +293,6 @@ class Plant(ABC):
         return self.simulate(candidates, span.starts, span.steps,
                              span.burn_in)[:, :, span.burn_in:]
 
-    def predict_linearised(self, base: Candidate, candidates: Sequence[Candidate],
-                           span: Span) -> FloatArray | None:
-        """Predict candidates near ``base`` for a finite-difference Jacobian, or None.
-
-        A plant that estimates something of its own in every window (an unmeasured load)
-        returns predictions with it held at what ``base`` estimates and then moved along
-        ``base``'s sensitivities to it (Kaufman's variable projection), one simulation per
-        candidate; None (the default) says that :meth:`predict` serves as it is.
-        """
-        return None
-
     def nominal(self) -> dict[str, float]:
         """Return the starting values of the baseline's fitted parameters."""
         return {p.name: p.start for p in self.baseline}
@@ -316,12 +309,6 @@ def model_air_fraction(fraction: float) -> float:
     the model's parameter would read 25 % high at alpha = 0.2.
     """
     return fraction / (1.0 - fraction)
-
-
-def _key(candidate: Candidate, span: Span) -> bytes:
-    """Identity of a candidate's prediction over a span (exact values, not rounded)."""
-    items = sorted((name, float(value)) for name, value in candidate.items())
-    return repr((items, span.burn_in, span.horizon)).encode() + span.starts.tobytes()
 
 
 def _delayed_indices(starts: IntArray, horizon: int, lag: int) -> IntArray:
@@ -387,8 +374,6 @@ class HasPlant(Plant):
         self._u = np.ascontiguousarray(measurement.input, dtype=float)
         self._drive_cache: dict[tuple[int, float, float],
                                 tuple[FloatArray, FloatArray, FloatArray]] = {}
-        # The window loads of the latest single candidate predicted (predict_linearised).
-        self._held: tuple[bytes, FloatArray, FloatArray] | None = None
 
     @property
     def baseline(self) -> tuple[Parameter, ...]:
@@ -456,59 +441,13 @@ class HasPlant(Plant):
         predicted = super().predict(candidates, span)
         if not self.window_load:
             return predicted
-        terms = self._load_terms(span.steps)
-        count = len(candidates)
-        extra = np.repeat(terms, count, axis=0)[:, :, None]  # (term x candidate, step, 1)
-        pushed = self._predict_loaded([c for _ in terms for c in candidates], span, extra)
-        changes = np.moveaxis(pushed.reshape(len(terms), *predicted.shape) - predicted[None],
-                              0, -1)  # (candidate, window, horizon, output, term)
-        gains = self._load_gains(changes, self.measured(span)[None, ..., 0] - predicted[..., 0])
-        if count == 1:
-            self._held = (_key(candidates[0], span), changes[0], gains[0])
-        return np.asarray(predicted + np.einsum('...hoi,...i->...ho', changes, gains),
-                          dtype=float)
-
-    def predict_linearised(self, base: Candidate, candidates: Sequence[Candidate],
-                           span: Span) -> FloatArray | None:
-        """Predict candidates near ``base``, each window's load held at ``base``'s.
-
-        Without :attr:`window_load`, None (:meth:`predict` serves). Otherwise each candidate
-        is simulated once under the loads that :meth:`predict` fitted to ``base``, and its
-        windows' loads are then re-fitted along ``base``'s sensitivities: the derivative of a
-        prediction whose load is estimated anew is that of a prediction at the estimated load,
-        less what a change of the load takes up (Kaufman's variable projection, which leaves
-        out how the sensitivities themselves change). A finite-difference Jacobian then costs
-        one simulation per parameter rather than one per parameter and load term; ``base``
-        itself belongs among the candidates, so that differences are taken alike.
-        """
-        if not self.window_load:
-            return None
-        key = _key(base, span)
-        if self._held is None or self._held[0] != key:
-            self.predict([base], span)
-        assert self._held is not None and self._held[0] == key
-        _, changes, gains = self._held
-        held = np.einsum('wi,is->sw', gains, self._load_terms(span.steps))
-        predicted = self._predict_loaded(candidates, span, held[None])
-        again = self._load_gains(changes[None], self.measured(span)[None, ..., 0]
-                                 - predicted[..., 0])
-        return np.asarray(predicted + np.einsum('...hoi,...i->...ho', changes[None], again),
-                          dtype=float)
-
-    def _load_terms(self, steps: int) -> FloatArray:
-        """Load of each window-load term over a window's samples [N], shape (terms, steps)."""
         step = WINDOW_LOAD_STEP * self.params.peak_thrust
-        t = np.linspace(-1.0, 1.0, steps)
-        return np.stack([step * Legendre.basis(degree)(t)
-                         for degree in range(WINDOW_LOAD_DEGREE + 1)])
-
-    @staticmethod
-    def _load_gains(changes: FloatArray, error: FloatArray) -> FloatArray:
-        """Least-squares gains of the load terms on a position error, per window.
-
-        ``changes`` (..., horizon, output, term) are the predictions' sensitivities to the
-        terms, ``error`` (..., horizon) the measured less the predicted position.
-        """
+        terms = WINDOW_LOAD_DEGREE + 1
+        shaped = [{**c, _LOAD_SHAPE_DEGREE: float(degree), _LOAD_SHAPE_SIZE: step}
+                  for degree in range(terms) for c in candidates]
+        pushed = super().predict(shaped, span).reshape(terms, *predicted.shape)
+        changes = np.moveaxis(pushed - predicted[None], 0, -1)  # (..., horizon, output, term)
+        error = self.measured(span)[None, ..., 0] - predicted[..., 0]
         basis = changes[..., 0, :]  # the position's sensitivities, (..., horizon, term)
         normal = np.einsum('...ki,...kj->...ij', basis, basis)
         right = np.einsum('...ki,...k->...i', basis, error)
@@ -516,17 +455,10 @@ class HasPlant(Plant):
         # the guess: the ridge is negligible against any sensitivity that counts.
         ridge = 1e-12 * np.trace(normal, axis1=-2, axis2=-1)[..., None, None] + 1e-300
         with np.errstate(invalid='ignore', over='ignore'):
-            gains = np.linalg.solve(normal + ridge * np.eye(basis.shape[-1]),
-                                    right[..., None])[..., 0]
-        return np.asarray(np.where(np.isfinite(gains), gains, 0.0), dtype=float)
-
-    def _predict_loaded(self, candidates: Sequence[Candidate], span: Span,
-                        extra: FloatArray) -> FloatArray:
-        """:meth:`Plant.predict` with ``extra`` [N] added to the unmeasured load.
-
-        ``extra`` has shape (candidates or 1, steps, windows or 1), over a window's samples.
-        """
-        return self._simulate(candidates, span.starts, span.steps, extra)[:, :, span.burn_in:]
+            gains = np.linalg.solve(normal + ridge * np.eye(terms), right[..., None])[..., 0]
+        gains = np.where(np.isfinite(gains), gains, 0.0)
+        return np.asarray(predicted + np.einsum('...hoi,...i->...ho', changes, gains),
+                          dtype=float)
 
     @property
     def alternatives(self) -> dict[str, tuple[Parameter, ...]]:
@@ -679,32 +611,22 @@ class HasPlant(Plant):
         The burn-in is simulated like the rest: the stiff hydraulics forget an imperfect
         initial velocity within it.
         """
-        return self._simulate(candidates, starts, horizon, None)
-
-    def _simulate(self, candidates: Sequence[Candidate], starts: IntArray, horizon: int,
-                  extra: FloatArray | None) -> FloatArray:
-        """:meth:`simulate`, with ``extra`` [N] (see :meth:`_predict_loaded`) on the load."""
         starts = np.asarray(starts, dtype=np.int64)
         if starts.min() < self.first_start or starts.max() + horizon >= self.measurement.samples:
             raise DiagnosisError('a window reaches outside the record')
-        if extra is not None:
-            if self._load is not None:
-                raise DiagnosisError('a measured load force takes no window load')
-            extra = np.broadcast_to(extra, (len(candidates), horizon, len(starts)))
         out = np.empty((len(candidates), len(starts), horizon, len(self.outputs)))
         chunk = max(1, MAX_JOINTS // len(starts))
         for first in range(0, len(candidates), chunk):
-            out[first:first + chunk] = self._simulate_chunk(
-                candidates[first:first + chunk], starts, horizon,
-                None if extra is None else extra[first:first + chunk])
+            out[first:first + chunk] = self._simulate_chunk(candidates[first:first + chunk],
+                                                            starts, horizon)
         return out
 
     def _simulate_chunk(self, candidates: Sequence[Candidate], starts: IntArray,
-                        horizon: int, extra: FloatArray | None) -> FloatArray:
+                        horizon: int) -> FloatArray:
         period = self.measurement.period
         windows = len(starts)
         packed, delays, commands, loads, states = [], [], [], [], []
-        for number, values in enumerate(candidates):
+        for values in candidates:
             params, delay = self.candidate_parameters(values)
             lag = math.floor(delay / period + 1e-9)
             # The simulator delays by the fraction of a period; whole periods shift the
@@ -719,9 +641,11 @@ class HasPlant(Plant):
                 level = float(values.get('load_force', self._load_guess))
                 load = level + self._rod_force[_delayed_indices(starts, horizon, 0)]
                 start_load = level + self._rod_force[starts]
-                if extra is not None:  # a window's own load (predict)
-                    load = load + extra[number]
-                    start_load = start_load + extra[number][0]
+                if _LOAD_SHAPE_DEGREE in values:  # a term of a window's own load (predict)
+                    term = Legendre.basis(int(values[_LOAD_SHAPE_DEGREE]))
+                    shape = values[_LOAD_SHAPE_SIZE] * term(np.linspace(-1.0, 1.0, horizon))
+                    load = load + shape[:, None]
+                    start_load = start_load + shape[0]
             loads.append(load)
             states.append(self.initial_states(params, delay, start_load, starts))
         states_out = _integrate(np.repeat(np.stack(packed), windows, axis=0),
