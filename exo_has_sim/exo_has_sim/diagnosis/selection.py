@@ -225,16 +225,18 @@ def _strayed(plant: Plant, reference: Fit) -> bool:
 
 def rank(plant: Plant, reference: Fit, reference_validation: Evaluation, named: Sequence[str],
          effects: Sequence[str], windows: Windows, weights: FloatArray,
-         progress: Progress | None = None, every: bool = False) -> list[Score]:
+         progress: Progress | None = None, every: bool = False,
+         enough: Callable[[Score], bool] | None = None) -> list[Score]:
     """Score every effect on top of a reference model; best score first.
 
     Each effect's size grid is tried on the reference held fixed (screening); the
     :data:`JOINT_FITS` effects whose best grid point lowers the estimation cost most, by at
     least :data:`SCREEN_GAIN` and to within :data:`RIVAL_FACTOR` of the best, are then fitted
     jointly with the reference's parameters (``every``: all of them, whatever screening
-    found, each also from the nominal values where the reference strayed). The others are
-    scored at their best grid point (``Score.screened``), which can only flatter them less
-    than a joint fit would, and cannot be named.
+    found, each also from the nominal values where the reference strayed, unless its first
+    fit already passes ``enough``). The others are scored at their best grid point
+    (``Score.screened``), which can only flatter them less than a joint fit would, and cannot
+    be named.
     """
     if progress:
         progress(f'  trying the size grids of {len(effects)} effects')
@@ -271,17 +273,21 @@ def rank(plant: Plant, reference: Fit, reference_validation: Evaluation, named: 
             # at the size screening chose, which it did simulate.
             fit = fit_parameters(plant, free, {}, windows.estimation_span, weights,
                                  initial=reference.values | sizes)
-        if (every or effect == order[0]) and strayed:
+        validation = evaluate(plant, [fit.values], windows.validation_span, weights)[0]
+        score = Score((*named, effect), fit, validation, reference_validation, len(added))
+        if (every or effect == order[0]) and strayed \
+                and not (enough is not None and enough(score)):
             # The reference's parameters strayed from nominal to absorb the effect: from
             # there the joint fit can stall in their valley (a bulk modulus pinned high by a
             # dead zone), so the likeliest effect's fit also starts from the nominal values,
             # and the better one wins.
             again = fit_parameters(plant, free, {}, windows.estimation_span, weights,
                                    initial=reference.values | plant.nominal() | sizes)
-            fit = again if again.cost < fit.cost else fit
-        validation = evaluate(plant, [fit.values], windows.validation_span, weights)[0]
-        ranking.append(Score((*named, effect), fit, validation, reference_validation,
-                             len(added)))
+            if again.cost < fit.cost:
+                validation = evaluate(plant, [again.values], windows.validation_span,
+                                      weights)[0]
+                score = replace(score, fit=again, validation=validation)
+        ranking.append(score)
     ranking.sort(key=lambda s: s.score)
     if progress:
         for score in ranking:
@@ -321,7 +327,8 @@ def hidden_rivals(plant: Plant, steps: Sequence[Sequence[Score]], baseline: Fit,
     position alone, friction moves the pressure at each reversal, and the leakage turns that
     into lost motion, as a dead zone or a delay would. So each step's named choice is checked
     against them: each is fitted jointly on top of the step's reference, and again from the
-    nominal values where the reference's parameters strayed (:func:`rank` with ``every``).
+    nominal values where the reference's parameters strayed and the first fit is no rival
+    (:func:`rank` with ``every``).
     Less would miss them: for a 95 N friction in a squat, screening's first-order projection
     judged the friction 70 times worse than none, and a fit from the reference, whose leakage
     had grown 13-fold, stopped at 33 N and x0.89 of the cost, behind the 3.6 rad/s dead zone
@@ -347,10 +354,13 @@ def hidden_rivals(plant: Plant, steps: Sequence[Sequence[Score]], baseline: Fit,
             break
         if progress:
             progress(f'checking {best.effect} against what these signals cannot identify')
+        def rival(score: Score, best: Score = best) -> bool:
+            return score.ratio < 1.0 and _paired_p(best.validation, score.validation) >= ALPHA
+
+        # A fit that is a rival already needs no second start: a better fit stays one.
         ranking = rank(plant, reference, reference_validation, named, effects, windows,
-                       weights, progress, every=True)
-        found = [score.effect for score in ranking  # every one fitted jointly
-                 if score.ratio < 1.0 and _paired_p(best.validation, score.validation) >= ALPHA]
+                       weights, progress, every=True, enough=rival)
+        found = [score.effect for score in ranking if rival(score)]  # each fitted jointly
         if found:
             out[best.effect] = found
         named.append(best.effect)
