@@ -5,14 +5,17 @@ Runs ``exo-has demo`` (:func:`exo_has_control.demo.run`, walking 10 s then squat
 bag: every safety event of severity ERROR or FATAL (none is expected: the demo has no fault),
 the rate of each joint's HAS state and command topics over the recording, and the tracking
 peaks.
-The printout and ``bench/results/demo_series.{json,txt}`` hold one line per session.
+The printout and ``bench/results/demo_series.{json,txt}`` hold one line per session
+(``demo_series_can.*`` with ``--hardware can``: the hardware driver on simulated CAN devices
+in place of the plant nodes).
 
-Run (in ``./run shell``): ``python bench/demo_series.py [--sessions 10]``.
+Run (in ``./run shell``): ``python bench/demo_series.py [--sessions 10] [--hardware can]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import tempfile
 from pathlib import Path
@@ -48,15 +51,17 @@ def main() -> None:
     """Run the sessions and write bench/results/demo_series.{json,txt}."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--sessions', type=int, default=10)
+    parser.add_argument('--hardware', choices=('plants', 'can'), default='plants')
     args = parser.parse_args()
     on_this_machine()
-    config = SessionConfig()
+    config = dataclasses.replace(SessionConfig(), hardware=args.hardware)
     results = []
     with tempfile.TemporaryDirectory() as scratch:
         for k in range(args.sessions):
             results.append(session_figures(config, Path(scratch) / f'demo_{k}'))
             print(json.dumps(results[-1]), flush=True)
-    lines = [f'bench/demo_series.py --sessions {args.sessions}: {describe_machine()}']
+    lines = [f'bench/demo_series.py --sessions {args.sessions} --hardware {args.hardware}: '
+             f'{describe_machine()}']
     for k, r in enumerate(results):
         events, states, commands = r['events'], r['state_rate_hz'], r['command_rate_hz']
         assert isinstance(events, list)
@@ -67,7 +72,8 @@ def main() -> None:
                      f'{max(commands.values())} Hz; tracking peaks {r["tracking_peak_deg"]}')
     clean = sum(1 for r in results if not r['events'])
     lines.append(f'{clean} of {len(results)} sessions without an ERROR or FATAL event')
-    write_results('demo_series', {'sessions': results}, lines)
+    name = 'demo_series' if args.hardware == 'plants' else f'demo_series_{args.hardware}'
+    write_results(name, {'hardware': args.hardware, 'sessions': results}, lines)
 
 
 if __name__ == '__main__':

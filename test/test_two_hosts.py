@@ -43,7 +43,7 @@ STALE_S = 0.2  # s: the session's stale limit (40 periods at 200 Hz), references
 HOLD_BOUND = STALE_S + 0.25  # s: plus a check period, the event's way and a scheduling hiccup
 RECOVERY_BOUND = 3.0  # s: Fast DDS resends its announcements; a lease (20 s) never expired
 HELD_MOTION = 2.0  # deg: how far a held joint may drift (pressure settling, load)
-HIP_WALK_PEAK, KNEE_PEAK = 8.0, 25.0  # deg, as test_session.py
+HIP_WALK_PEAK, KNEE_PEAK = 10.0, 26.0  # deg, as test_session.py
 
 
 @dataclass
