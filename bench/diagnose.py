@@ -6,9 +6,12 @@ eight sines 0.2-5 Hz (the paper's Fig. 13 excitation) against a load swinging be
 12 MPa, with 60 N of Coulomb friction and sensor noise (position 10 um, pressure 30 kPa, motor
 speed 1 rad/s, load 3 N), written as a CSV log. Each run is the whole command, CSV reading
 included, in a fresh Python process (numba's compiled code cached on disk beforehand), timed
-by wall clock, with the process's peak resident memory (``ru_maxrss``).
+by wall clock, with the process's peak resident memory (``ru_maxrss``). ``--sensors position``
+writes the command, the position and the reference only (the paper's logging): friction then
+cannot be identified, and each window takes a load of its own.
 
-Usage: ``.venv/bin/python bench/diagnose.py [--repeats N] [--durations S ...] [--out FILE]``.
+Usage: ``.venv/bin/python bench/diagnose.py [--repeats N] [--durations S ...]
+[--sensors full|position] [--out FILE]``.
 """
 
 from __future__ import annotations
@@ -33,6 +36,8 @@ from exo_has_sim.parameters import load_parameters
 from exo_has_sim.simulate import simulate_closed_loop
 
 PERIOD = 0.005
+#: Columns kept with ``--sensors position``.
+POSITION_ONLY = ('time', 'motor_speed_command', 'position', 'reference')
 CHILD = """
 import json, resource, sys, time
 start = time.perf_counter()
@@ -44,7 +49,7 @@ print(json.dumps({'code': code, 'wall': elapsed,
 """
 
 
-def make_log(duration: float, path: Path, seed: int = 0) -> None:
+def make_log(duration: float, path: Path, seed: int = 0, sensors: str = 'full') -> None:
     """Write a CSV log of ``duration`` seconds (see the module docstring)."""
     rng = np.random.default_rng(seed)
     hip = load_parameters('hip')
@@ -70,6 +75,8 @@ def make_log(duration: float, path: Path, seed: int = 0) -> None:
                'pressure_a': run.pressure[:-1, 0] + rng.normal(0.0, 3e4, n),
                'motor_speed': run.states[:-1, 0, model.N] + rng.normal(0.0, 1.0, n),
                'load_force': load + rng.normal(0.0, 3.0, n)}
+    if sensors == 'position':
+        columns = {name: columns[name] for name in POSITION_ONLY}
     write_csv(check_columns(columns, 'has', 'bench'), path)
 
 
@@ -89,17 +96,18 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--repeats', type=int, default=3)
     parser.add_argument('--durations', type=float, nargs='+', default=[30.0, 120.0, 600.0])
+    parser.add_argument('--sensors', choices=('full', 'position'), default='full')
     parser.add_argument('--out', type=Path)
     args = parser.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as folder:
         work = Path(folder)
-        make_log(30.0, work / 'warm.csv')
+        make_log(30.0, work / 'warm.csv', sensors=args.sensors)
         run_child(work / 'warm.csv', work / 'warm.json')  # fills numba's disk cache
         for duration in args.durations:
             log = work / f'log_{duration:g}.csv'
             started = time.perf_counter()
-            make_log(duration, log)
+            make_log(duration, log, sensors=args.sensors)
             made = time.perf_counter() - started
             runs = [run_child(log, work / 'result.json') for _ in range(args.repeats)]
             doc = json.loads((work / 'result.json').read_text())
@@ -113,13 +121,15 @@ def main() -> None:
                    'fit_baseline': doc['fit_baseline'], 'fit_extended': doc['fit_extended'],
                    'log_made_s': made, 'csv_mb': log.stat().st_size / 1e6}
             rows.append(row)
+            friction = row['coulomb_friction_n']
+            named = '' if friction is None else f', F_c {friction:.1f} N (truth 60)'
             print(f"{duration:6.0f} s of data ({row['samples']} samples, "
                   f"{row['csv_mb']:.1f} MB CSV): {wall:6.1f} s wall (median of "
                   f"{args.repeats}), {row['seconds_per_minute_of_data']:5.2f} s per minute of "
-                  f"data, peak RSS {row['peak_rss_mb']:.0f} MB; cause {row['cause']}, "
-                  f"F_c {row['coulomb_friction_n']:.1f} N (truth 60), fit "
-                  f"{row['fit_baseline']:.2f} -> {row['fit_extended']:.2f} %", flush=True)
+                  f"data, peak RSS {row['peak_rss_mb']:.0f} MB; cause {row['cause']}{named}, "
+                  f"fit {row['fit_baseline']:.2f} -> {row['fit_extended']:.2f} %", flush=True)
     result = {'command': 'exo-has diagnose LOG --joint hip -q --json FILE',
+              'sensors': args.sensors,
               'machine': {'platform': platform.platform(), 'python': platform.python_version(),
                           'cpus': os.cpu_count()},
               'date': time.strftime('%Y-%m-%d'), 'repeats': args.repeats, 'rows': rows}

@@ -13,11 +13,11 @@ CSV log and diagnosed by the command (``main``) with the joint type's parameters
 user would, with the JSON document as the result.
 
 Acceptance: over the 21 draws, the named cause is the hidden effect (exactly, ``none`` for the
-none draws) in at least 90 %; every size named is within 25 % of the truth; every real effect
-shows a positive validated gain in the ranking; no none draw raises an alarm (the calibrated
-rate is measured by bench/detection.py on 40 draws). Two effects at once (Coulomb friction
-with a transport delay) are both named, or the delay reported as indistinguishable from a
-second-order motor loop. A table of every draw is printed (``pytest -s``).
+none draws) in at least 90 %; every size named is within 25 % of the truth, on each plant; every
+real effect shows a positive validated gain in the ranking; no none draw raises an alarm (the
+calibrated rate is measured by bench/detection.py on 40 draws). Two effects at once (Coulomb
+friction with a transport delay) are both named, or the delay reported as indistinguishable
+from a second-order motor loop. A table of every draw is printed (``pytest -s``).
 """
 
 from __future__ import annotations
@@ -112,22 +112,19 @@ def test_the_hidden_effect_is_named_in_at_least_90_percent_of_the_draws(results)
     assert sum(hit(row) for row in results) >= 0.9 * len(results)
 
 
-def test_every_size_named_is_within_25_percent_of_the_truth(results):
-    errors = [size_error(row) for row in results if row['plant'] == tp.__name__]
-    named = [e for e in errors if e is not None]
-    assert len(named) >= 0.9 * sum(row['draw'].effect != 'none' for row in results
-                                   if row['plant'] == tp.__name__)
-    assert max(abs(e) for e in named) <= SIZE_TOLERANCE
-
-
-def test_on_the_second_plant_most_sizes_are_within_25_percent_and_all_within_50(results):
-    # Short of issue 12's 25 % for every size: on the second plant, whose structure differs
-    # from the model's (rod side through a line, a PI loop, flow A_A v), a small quadratic
-    # leakage came out 44 % low and a friction 38 % high (README, "Evidence").
-    named = [e for e in (size_error(row) for row in results if row['plant'] == sp.__name__)
-             if e is not None]
-    assert sum(abs(e) <= SIZE_TOLERANCE for e in named) >= 0.75 * len(named)
-    assert max(abs(e) for e in named) <= 2.0 * SIZE_TOLERANCE
+@pytest.mark.parametrize('plant, share', [(tp, 0.9), (sp, 0.5)],
+                         ids=['first plant', 'second plant'])
+def test_every_size_named_is_within_25_percent_of_the_truth(results, plant, share):
+    # The second plant's structure differs from the model's (rod side through a line, a
+    # second-order motor loop, a PI controller): its small quadratic leakage (6004) comes out
+    # 20 % low (44 % low while the model took the paper's averaged flow area). Of its six
+    # effects, its 7.8 ms delay lies under its record's detection limit beside the motor's
+    # second-order loop, and its relief valve ties with a quadratic leakage, reported beside
+    # it: four are named.
+    rows = [row for row in results if row['plant'] == plant.__name__]
+    named = [e for e in (size_error(row) for row in rows) if e is not None]
+    assert len(named) >= share * sum(row['draw'].effect != 'none' for row in rows)
+    assert max(abs(e) for e in named) <= SIZE_TOLERANCE, named
 
 
 def test_every_real_effect_shows_a_positive_validated_gain(results):
