@@ -14,7 +14,10 @@ from exo_has_sim.diagnosis.data import (
     read_csv,
     write_csv,
 )
-from exo_has_sim.errors import MeasurementError
+from exo_has_sim.diagnosis.fitting import output_weights
+from exo_has_sim.diagnosis.plants import HasPlant
+from exo_has_sim.errors import DiagnosisError, MeasurementError
+from exo_has_sim.parameters import load_parameters
 
 HIP = Limits(stroke=0.13, motor_speed_max=418.9)
 PERIOD = 0.005
@@ -128,6 +131,19 @@ def test_a_value_that_is_not_a_number_is_named_by_row_and_column(tmp_path):
     path.write_text('\n'.join(lines) + '\n')
     with pytest.raises(MeasurementError, match="row 11, column position: 'oops' is not a number"):
         read_csv(path)
+
+
+def test_a_command_that_never_changes_is_refused_naming_it():
+    still = columns(motor_speed_command=np.zeros(400))
+    with pytest.raises(MeasurementError, match='motor_speed_command is 0 throughout; a '
+                                               'diagnosis needs a record in which the input'):
+        check_columns(still, 'has', 'rest.csv', HIP)
+
+
+def test_an_output_that_never_changes_is_named():
+    flat = check_columns(columns(pressure_a=np.zeros(400)), 'has', 'flat.csv', HIP)
+    with pytest.raises(DiagnosisError, match='pressure_a is 0 throughout the record'):
+        output_weights(HasPlant(flat, load_parameters('hip')))
 
 
 def test_too_short_a_record_is_refused():

@@ -149,8 +149,12 @@ def robust_rms(residuals: FloatArray) -> float:
 def output_weights(plant: Plant) -> FloatArray:
     """1 / standard deviation over the record of each output of a plant."""
     spread = [float(np.std(plant.measurement.signal(name))) for name in plant.outputs]
-    if min(spread) <= 0.0:
-        raise DiagnosisError('an output is constant over the record: nothing to compare')
+    for name, value in zip(plant.outputs, spread, strict=True):
+        if not value > 0.0:
+            level = float(plant.measurement.signal(name)[0])
+            msg = (f'{name} is {level:g} throughout the record: nothing to compare (leave the '
+                   'column out if it was not measured)')
+            raise DiagnosisError(msg)
     return 1.0 / np.asarray(spread)
 
 
