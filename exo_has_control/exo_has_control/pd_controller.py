@@ -104,9 +104,8 @@ class PdController(Node):
             ('kp', PAPER_KP, "position gain [(rad/s)/m]: the paper's P = 35 read as (rad/s) "
                              'per mm'),
             ('kd', PAPER_KD, "velocity-error gain [(rad/s)/(m/s)]: the paper's D = 15"),
-            ('kff', paper.kff, 'velocity feedforward [(rad/s)/(m/s)]: 1/K of Eq. 14 with A_A; 0 '
-                               'gives '
-                               "the paper's pure PD"),
+            ('kff', paper.kff, 'velocity feedforward [(rad/s)/(m/s)]: 1/K of Eq. 14 with A_A; '
+                               "0 gives the paper's pure PD"),
             ('motor_speed_limit', params.motor_speed_max,
              'motor speed saturation [rad/s] (the paper: 4000 r/min)'),
         )

@@ -167,11 +167,12 @@ class HasParameters:
         paper's circuit the rod side returns to the tank and the flow matching valve makes up
         the pump's inlet from it (2.2, 2.3.3). The paper's Eq. 10 divides by the average
         ``(A_A + A_B) / 2`` instead, having added the rod side's balance as if it fed the pump
-        (:mod:`exo_has_sim.linear` keeps its Eqs. 12-14 as printed). Data cannot tell the two
-        apart, since scaling every flow alike changes no prediction but through the nominal
-        pump displacement; what they do change is the size of a flow law that a diagnosis
-        names (a quadratic leakage, entrained air), which comes out in proportion to this
-        area (bench/README.md, "The flow area").
+        (:func:`exo_has_sim.linear.averaged_flow_area` gives its Eqs. 12-14 as printed). Data
+        can hardly tell the two apart: scaling every flow alike changes no prediction but
+        through the prior on the pump displacement and the compact valve's free-mode flow.
+        What the area does change is the size of a flow law that a diagnosis names (a
+        quadratic leakage, entrained air), which comes out in proportion to it
+        (bench/README.md, "The flow area").
         """
         return self.area_a
 
