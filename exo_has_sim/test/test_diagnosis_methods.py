@@ -124,6 +124,16 @@ def test_a_friction_step_in_the_pressure_residual_shows_in_the_velocity_sign_sig
     assert_allclose(found['velocity_sign'].means[0], 2e5, rtol=0.1)
 
 
+def test_an_input_at_zero_throughout_leaves_out_the_signature_of_its_size():
+    n = 400
+    v = 1e-4 * np.random.default_rng(7).standard_normal(n)
+    features = {'velocity': v, 'input': np.zeros(n), 'input_rate': np.zeros(n),
+                'since_reversal': np.zeros(n)}
+    rates = {'position': v}
+    found = {s.id for s in signatures(features, rates, {'position': v}, PERIOD, None)}
+    assert 'small_input' not in found and 'velocity_sign' in found
+
+
 def test_a_span_scores_after_its_burn_in():
     span = Span(np.array([10, 50]), 5, burn_in=3)
     assert span.steps == 8

@@ -175,8 +175,7 @@ def check_columns(columns: Mapping[str, FloatArray], plant: str, source: str,
     ------
     MeasurementError
         Naming the missing columns, the first non-increasing time, the first NaN run, a
-        likely unit mistake, too short a record, too large a gap, or an input that never
-        changes.
+        likely unit mistake, too short a record, or too large a gap.
 
     """
     if plant not in INPUT_COLUMNS:
@@ -248,15 +247,9 @@ def check_columns(columns: Mapping[str, FloatArray], plant: str, source: str,
     else:
         # Exactly uniform in effect: rebuild the grid so that period is exact.
         data['time'] = time[0] + np.arange(count) * float((time[-1] - time[0]) / (count - 1))
-    command = data[INPUT_COLUMNS[plant]]
-    if float(np.ptp(command)) == 0.0:
-        # Nothing excites the model: every fit would rest on noise alone.
-        msg = (f'{source}: {INPUT_COLUMNS[plant]} is {command[0]:g} throughout; a diagnosis '
-               'needs a record in which the input varies')
-        raise MeasurementError(msg)
     optional = {name: data[name] for name in OPTIONAL_COLUMNS if name in data}
-    return Measurement(data['time'], command, data['position'], optional, plant, source,
-                       tuple(notes))
+    return Measurement(data['time'], data[INPUT_COLUMNS[plant]], data['position'], optional,
+                       plant, source, tuple(notes))
 
 
 def _check_units(data: Mapping[str, FloatArray], plant: str, source: str,

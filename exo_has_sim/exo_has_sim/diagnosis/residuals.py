@@ -250,18 +250,19 @@ def signatures(features: Mapping[str, FloatArray], rates: Mapping[str, FloatArra
         centres, means, errors, _t_difference(np.abs(flow[near]), np.abs(flow[~near])),
         'Welch t of |velocity error| within 50 ms of a reversal minus elsewhere'))
     magnitude = np.abs(u)
-    top = float(np.max(magnitude)) if len(magnitude) else 1.0
-    edges = np.geomspace(max(top * 1e-3, 1e-12), top * (1 + 1e-9), bins + 1)
-    signed = flow * np.sign(u)
-    centres, means, errors = binned(magnitude, signed, edges)
-    small = magnitude < np.quantile(magnitude, 0.5)
-    out.append(Signature(
-        'small_input', 'velocity error along the input against its size', 'pump_deadzone',
-        '|input|', 'position residual rate x sign(input) [m/s]', centres, means, errors,
-        -_t_mean(signed),
-        'minus the t of the mean velocity error along the input (a dead zone: the plant '
-        "moves slower than the model in the input's direction, most for small inputs); "
-        f'{int(np.sum(small))} samples below the median input'))
+    top = float(np.max(magnitude)) if len(magnitude) else 0.0
+    if top > 0.0:  # an input at zero throughout has no size to bin by
+        edges = np.geomspace(top * 1e-3, top * (1 + 1e-9), bins + 1)
+        signed = flow * np.sign(u)
+        centres, means, errors = binned(magnitude, signed, edges)
+        small = magnitude < np.quantile(magnitude, 0.5)
+        out.append(Signature(
+            'small_input', 'velocity error along the input against its size', 'pump_deadzone',
+            '|input|', 'position residual rate x sign(input) [m/s]', centres, means, errors,
+            -_t_mean(signed),
+            'minus the t of the mean velocity error along the input (a dead zone: the plant '
+            "moves slower than the model in the input's direction, most for small inputs); "
+            f'{int(np.sum(small))} samples below the median input'))
     rate = features['input_rate']
     lag_values = []
     target = rates.get('motor_speed', flow)

@@ -21,7 +21,10 @@ cost (geometric mean over the outputs) falls by at least :data:`MIN_GAIN`: a gai
 matter, which a slightly wrong fixed parameter can produce without any effect, is no
 diagnosis. The held-out windows already penalise an extension that only fits noise: fitted on
 the estimation windows, it predicts the others worse. The named cause is the significant effect
-of lowest score, or ``none``.
+of lowest score, or ``none``; before it is named, the reference is fitted again from the
+effect's own values of the reference's parameters, and the effect must be significant against
+that fit too (:func:`_against_own_start`): a joint fit may find a better basin of the
+reference's own parameters, whose gain is then no effect's.
 
 Two effects: forward selection. With a cause named, every other effect is fitted on top of the
 extended model (baseline, first effect and the candidate, all refitted) and scored against the
@@ -382,6 +385,31 @@ def _paired_p(better: Evaluation, other: Evaluation) -> float:
     return float(t_distribution.cdf(mean / (spread / math.sqrt(n)), n - 1))
 
 
+def _against_own_start(plant: Plant, score: Score, reference: Fit, windows: Windows,
+                       weights: FloatArray) -> Score:
+    """Score an extension against its reference re-fitted from the extension's own values.
+
+    A joint fit starts elsewhere than the reference's fit did and can end in another basin
+    of the reference's own parameters, which predicts the held-out windows better whatever
+    the effect does: on an effect-free record of the second truth plant (command and
+    position only, seed 70011), a dead zone of 0.05 rad/s, which moves nothing, came with a
+    validated cost of x0.73 of the baseline's; against the baseline re-fitted from that fit's
+    values, without the dead zone, it was x0.96 and not significant. So the reference is
+    re-fitted from the extension's values of its parameters, and the extension is scored
+    against that too: an effect is named only where it beats the reference from either
+    start.
+    """
+    names = {parameter.name for parameter in reference.free}
+    start = reference.values | {k: v for k, v in score.fit.values.items() if k in names}
+    try:
+        again = fit_parameters(plant, reference.free, {}, windows.estimation_span, weights,
+                               initial=start, tolerance=REFERENCE_TOLERANCE)
+    except FitError:
+        return score
+    validation = evaluate(plant, [again.values], windows.validation_span, weights)[0]
+    return replace(score, reference=validation)
+
+
 def forward_selection(plant: Plant, baseline: Fit, baseline_validation: Evaluation,
                       windows: Windows, weights: FloatArray, effects: Sequence[str],
                       max_causes: int = 2,
@@ -417,6 +445,17 @@ def forward_selection(plant: Plant, baseline: Fit, baseline_validation: Evaluati
         ranking = rank(plant, reference, reference_validation, named, remaining, windows,
                        weights, progress)
         steps.append(ranking)
+        checked: set[str] = set()
+        while ranking[0].significant and ranking[0].effect not in checked:
+            checked.add(ranking[0].effect)
+            again = _against_own_start(plant, ranking[0], reference, windows, weights)
+            if again.significant:
+                break
+            if progress:
+                progress(f'  {ranking[0].effect}: the reference re-fitted from its values does '
+                         f'as well (validated cost x{again.ratio:.3f} against it): not named')
+            ranking[0] = again
+            ranking.sort(key=lambda score: score.score)
         best = ranking[0]
         if not best.significant:
             break
