@@ -42,9 +42,10 @@ KEPT = ('time', 'motor_speed_command', 'position', 'reference')
 #: dead zone does: a 3.6 rad/s one is named, with the friction reported beside it), and a
 #: dead zone of the first plant (its other, 5009, named at -0.1 % in bench/detection.py
 #: --hidden, is left to the bench: its diagnosis, rival checks included, takes 2.5 min).
-DRAWS = ((tp, 5000, 'none'), (tp, 5007, 'none'), (sp, 6000, 'none'),
-         (tp, 5008, 'coulomb_friction'), (tp, 5005, 'relief_valve'),
-         (tp, 5002, 'pump_deadzone'))
+#: The dead zone goes first: named, it takes as long as the other five together (2 min on
+#: 2026-11-26's slowed machine), and one process does it while the other does the rest.
+DRAWS = ((tp, 5002, 'pump_deadzone'), (tp, 5000, 'none'), (tp, 5007, 'none'),
+         (sp, 6000, 'none'), (tp, 5008, 'coulomb_friction'), (tp, 5005, 'relief_valve'))
 SIZE_TOLERANCE = 0.25
 
 
@@ -91,6 +92,9 @@ def test_every_effect_through_the_pressure_is_reported_unidentifiable_not_named(
         assert sorted(row['doc']['unidentifiable']) == through
         assert not set(row['doc']['causes']) & set(through)
         assert not set(row['doc']['detection_limits']) & set(through)
+        # The effects that stay identifiable are still tried, the transport delay among them.
+        tried = {r['effect'] for r in row['doc']['ranking']}
+        assert 'transport_delay' in tried and not tried & set(through), row['seed']
 
 
 def test_every_dead_zone_is_named_within_25_percent(results):

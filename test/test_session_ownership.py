@@ -44,7 +44,10 @@ def start_demo(folder: Path, durations: tuple[float, float] = (30.0, 5.0),
     return subprocess.Popen(
         [sys.executable, '-m', 'exo_has_runtime.cli', 'demo', '--durations',
          *map(str, durations), '--output', str(folder)],
-        stdout=log, stderr=subprocess.STDOUT, cwd=folder, env={**os.environ, **(env or {})})
+        stdout=log, stderr=subprocess.STDOUT, cwd=folder, env={**os.environ, **(env or {})},
+        # A shell's background job inherits SIGINT ignored, and Python then raises no
+        # KeyboardInterrupt: the tests send SIGINT, so the demo must not inherit that.
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
 def wait_for_line(path: Path, pattern: str, process: subprocess.Popen,

@@ -303,20 +303,3 @@ def test_a_window_load_bends_with_a_squat_s_load_which_a_line_cannot_follow(monk
         misfit.append(100.0 - evaluate(plant, [values], span, output_weights(plant))[0].fit(0))
     # Measured: 0.80 % of the motion unexplained with a line, 0.09 % with the bend.
     assert misfit[1] < 0.15 and misfit[1] < misfit[0] / 4.0
-
-
-def test_in_position_only_data_a_dead_zone_is_named_and_the_rest_declared_unidentifiable():
-    hip = load_parameters('hip')
-    truth = hip.replace(bulk_modulus=0.9e9, damping=1300.0).with_effects(pump_deadzone=12.0)
-    rng = np.random.default_rng(9)
-    columns = position_only(has_closed_loop(truth, seconds=12.0, seed=3))
-    columns['position'] = columns['position'] + rng.normal(0.0, 1e-5, len(columns['time']))
-    result = diagnose(HasPlant(check_columns(columns, 'has', 'own model'), hip))
-    assert result.causes == ('pump_deadzone',)
-    assert_allclose(result.sizes()['pump_deadzone'], 12.0, rtol=0.1)
-    doc = result.to_json()
-    assert sorted(doc['unidentifiable']) == ['coulomb_friction', 'entrained_air',
-                                             'quadratic_leakage', 'relief_valve']
-    tried = {row['effect'] for row in doc['ranking']}
-    assert tried.isdisjoint(doc['unidentifiable']) and 'transport_delay' in tried
-    assert set(doc['detection_limits']).isdisjoint(doc['unidentifiable'])
