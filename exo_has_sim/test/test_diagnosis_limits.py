@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from exo_has_sim.diagnosis.limits import DetectionLimit, _named_over, ladder
+from exo_has_sim.diagnosis.limits import DetectionLimit, _named_over, ladder, refused_at
 
 WINDOWS, HORIZON, OUTPUTS = 40, 100, 2
 WEIGHTS = np.ones(OUTPUTS)
@@ -66,10 +66,27 @@ def test_the_limit_is_the_weakest_size_from_which_every_stronger_one_is_named():
     assert 'under about 4 N cannot be told from noise' in limit.sentence()
     assert limit.to_json() == {'limit': 4.0, 'unit': 'N', 'below_range': False,
                                'sizes': [1.0, 2.0, 4.0, 8.0],
-                               'named': [True, False, True, True]}
+                               'named': [True, False, True, True], 'refused': None}
     crack = DetectionLimit('relief_valve', 'Pa', (13e6, 11e6), (False, True), 11e6)
     assert 'above about 1.1e+07 Pa cannot be told' in crack.sentence()
     never = DetectionLimit('transport_delay', 's', (0.001, 0.04), (False, False), None)
     assert 'not named even at 0.04 s' in never.sentence()
     always = DetectionLimit('pump_deadzone', 'rad/s', (2.0, 4.0), (True, True), 2.0)
     assert always.below_range and 'named from 2 rad/s' in always.sentence()
+
+
+def test_a_size_the_record_refused_and_every_weaker_one_count_as_not_named():
+    # As on the position-only draw 5010: the projection stated 0.4 ms, the record refused a
+    # delay fitted at 10.9 ms.
+    sizes = (0.0004, 0.0024, 0.0145, 0.04)
+    stated = DetectionLimit('transport_delay', 's', sizes, (True, True, True, True), 0.0004)
+    refused = refused_at(stated, 0.0109)
+    assert refused.named == (False, False, True, True) and refused.limit == 0.0145
+    assert refused.to_json()['refused'] == 0.0109
+    assert ('under about 0.0145 s cannot be told' in refused.sentence()
+            and 'fitted here at 0.0109 s, it did no better' in refused.sentence())
+    assert refused_at(refused, 0.003) == refused  # a weaker refusal changes nothing
+    crack = DetectionLimit('relief_valve', 'Pa', (13e6, 11e6, 9e6), (True, True, True), 13e6)
+    assert refused_at(crack, 11e6).named == (False, False, True)
+    never = refused_at(stated, 0.05)
+    assert never.limit is None and 'not named even at 0.04 s' in never.sentence()

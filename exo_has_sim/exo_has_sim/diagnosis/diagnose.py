@@ -54,7 +54,7 @@ from exo_has_sim.diagnosis.fitting import (
     output_weights,
     robust_rms,
 )
-from exo_has_sim.diagnosis.limits import DetectionLimit, detection_limits
+from exo_has_sim.diagnosis.limits import DetectionLimit, detection_limits, refused_at
 from exo_has_sim.diagnosis.plants import HasPlant, MassPlant, Plant, smooth
 from exo_has_sim.diagnosis.residuals import (
     CorrelationTest,
@@ -372,6 +372,10 @@ def diagnose(plant: Plant, horizon: float = DEFAULT_HORIZON, burn_in: float = DE
     say('detection limits of the effects left out')
     limits = detection_limits(plant, extended, extended_validation, validation, weights,
                               [e for e in chosen if e not in causes])
+    for score in (score for step in steps for score in step):
+        if score.own_start and not score.significant and score.effect in limits:
+            size = score.fit.values[plant.effect_parameters(score.effect)[0].name]
+            limits[score.effect] = refused_at(limits[score.effect], size)
     for limit in limits.values():
         say(f'  {limit.sentence()}')
     return Diagnosis(plant, windows, weights, nominal, baseline, baseline_validation, steps,

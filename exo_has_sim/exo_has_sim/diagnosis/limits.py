@@ -23,12 +23,19 @@ The limit is the smallest size from which every larger one tried is named: "fric
 about 12 N cannot be told from noise and nominal error in data like these". It rests on the
 linearisation and on this record's residuals as the noise, and is checked against the limits
 that full diagnoses of simulated records measure (bench/detection.py, bench/README.md).
+
+The linearisation cannot see what the selection's own-start check finds: that the reference,
+re-fitted from a candidate's values, predicts as well as the candidate. Where that check
+refused an effect fitted at some size, the record has shown that size not named, whatever the
+projection judged (command and position only, seed 5010 of the first truth plant: an 11 ms
+delay, fitted at 10.9 ms, refused so, where the projection had stated 0.4 ms):
+:func:`refused_at` marks that size and every weaker one not named.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -61,6 +68,9 @@ class DetectionLimit:
     limit : float or None
         The weakest size from which every stronger one tried is named; None when even the
         strongest tried is not.
+    refused : float or None
+        Size at which the effect was fitted to this record and refused by the selection's
+        own-start check (:func:`refused_at`); None when it was not.
 
     """
 
@@ -69,6 +79,7 @@ class DetectionLimit:
     sizes: tuple[float, ...]
     named: tuple[bool, ...]
     limit: float | None
+    refused: float | None = None
 
     @property
     def below_range(self) -> bool:
@@ -80,19 +91,42 @@ class DetectionLimit:
         title = EFFECTS[self.effect].title if self.effect in EFFECTS else self.effect
         weaker = 'under' if _grows_with_size(self.effect) else 'above'
         unit = '' if self.unit in ('', '-') else f' {self.unit}'
+        why = ('' if self.refused is None else
+               f' (fitted here at {self.refused:.3g}{unit}, it did no better than the model '
+               're-fitted from its values)')
         if self.limit is None:
             return (f'{title}: not named even at {self.sizes[-1]:.3g}{unit}, the strongest '
-                    'tried: data like these cannot show it')
+                    f'tried: data like these cannot show it{why}')
         if self.below_range:
             return (f'{title}: named from {self.limit:.3g}{unit} (the weakest tried) and '
                     'stronger')
         return (f'{title} {weaker} about {self.limit:.3g}{unit} cannot be told from noise and '
-                'nominal error in these data')
+                f'nominal error in these data{why}')
 
     def to_json(self) -> dict[str, object]:
         """Return the limit as the JSON document carries it."""
         return {'limit': self.limit, 'unit': self.unit, 'below_range': self.below_range,
-                'sizes': list(self.sizes), 'named': list(self.named)}
+                'sizes': list(self.sizes), 'named': list(self.named), 'refused': self.refused}
+
+
+def _limit_of(sizes: Sequence[float], named: Sequence[bool]) -> float | None:
+    """Return the weakest size from which every stronger one is named (None: none is)."""
+    return next((sizes[i] for i in range(len(sizes)) if all(named[i:])), None)
+
+
+def refused_at(limit: DetectionLimit, size: float) -> DetectionLimit:
+    """Return the limit with ``size``, and every weaker size tried, marked not named.
+
+    For an effect that the record itself refused at ``size`` (module docstring); where it was
+    refused at a stronger size already, the limit is returned as it is.
+    """
+    grows = _grows_with_size(limit.effect)
+    if limit.refused is not None and (limit.refused >= size if grows else
+                                      limit.refused <= size):
+        return limit
+    named = tuple(flag and (s > size if grows else s < size)
+                  for s, flag in zip(limit.sizes, limit.named, strict=True))
+    return replace(limit, named=named, limit=_limit_of(limit.sizes, named), refused=size)
 
 
 def _grows_with_size(effect: str) -> bool:
@@ -237,10 +271,6 @@ def detection_limits(plant: Plant, model: Fit, model_validation: Evaluation, spa
         named = [bool(np.all(np.isfinite(e.predicted))) and _named_over(
             projection.residual((e.predicted - base) * weights), r0, weights, len(parameters),
             rivals) for e in tried]
-        limit = None
-        for index in range(len(sizes)):
-            if all(named[index:]):
-                limit = sizes[index]
-                break
-        out[effect] = DetectionLimit(effect, size.unit, sizes, tuple(named), limit)
+        out[effect] = DetectionLimit(effect, size.unit, sizes, tuple(named),
+                                     _limit_of(sizes, named))
     return out

@@ -94,6 +94,9 @@ class Score:
         Parameters added.
     screened : bool
         Scored at its best size on the reference held fixed, not fitted jointly.
+    own_start : bool
+        Scored against the reference re-fitted from its own values (:func:`_against_own_start`)
+        after it had been significant against the reference.
 
     """
 
@@ -103,6 +106,7 @@ class Score:
     reference: Evaluation
     added: int
     screened: bool = False
+    own_start: bool = False
 
     @property
     def effect(self) -> str:
@@ -407,7 +411,7 @@ def _against_own_start(plant: Plant, score: Score, reference: Fit, windows: Wind
     except FitError:
         return score
     validation = evaluate(plant, [again.values], windows.validation_span, weights)[0]
-    return replace(score, reference=validation)
+    return replace(score, reference=validation, own_start=True)
 
 
 def forward_selection(plant: Plant, baseline: Fit, baseline_validation: Evaluation,
