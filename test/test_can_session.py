@@ -9,10 +9,11 @@ standard input. The tests run in file order and share the session.
 The session runs at 100 Hz, not the product's 200 Hz. On one machine the simulated devices
 (which the robot's drives and boards run on microcontrollers of their own) and the driver
 exchange 17 frames per SYNC over multicast UDP. Each process receives every frame, its own
-included. At 200 Hz that took 1.1 cores of this 2-vCPU VM on 2026-11-21. On 2026-11-26 the
-same VM, and the CI machine, ran our code at half that speed: the fast simulator took 0.31 s
-where it had taken 0.15 s (bench/simulator.py, the same commit a16768b). The session at 200 Hz
-then took 1.8 of the 2 cores. Its loop fell to 155-185 Hz, and the master saw every slave's
+included. At 200 Hz the whole session took 1.1 cores of a 2-vCPU VM on 2026-11-21
+(bench/closed_loop.py). On 2026-11-26 this session's VM, and the CI machine, were slower for
+our code: the fast simulator's walk took 0.31 s at commit a16768b, which the VM of 2026-11-25
+had run in 0.15 s (bench/simulator.py), and the test suite 1138 s against 761 s. The session
+at 200 Hz then took 1.8 of the 2 cores. Its loop fell to 155-185 Hz, and the master saw every slave's
 heartbeat lost (a 0.17 s gap against the 0.15 s consumer time). At 100 Hz it holds its rate.
 The loop's behaviour at 200 Hz is measured by bench/closed_loop.py and bench/driver.py, where
 a slow machine shows as a number, not as a failed test.
