@@ -13,8 +13,9 @@ included. At 200 Hz the whole session took 1.1 cores of a 2-vCPU VM on 2026-11-2
 (bench/closed_loop.py). On 2026-11-26 this session's VM, and the CI machine, were slower for
 our code: the fast simulator's walk took 0.31 s at commit a16768b, which the VM of 2026-11-25
 had run in 0.15 s (bench/simulator.py), and the test suite 1138 s against 761 s. The session
-at 200 Hz then took 1.8 of the 2 cores. Its loop fell to 155-185 Hz, and the master saw every slave's
-heartbeat lost (a 0.17 s gap against the 0.15 s consumer time). At 100 Hz it holds its rate.
+at 200 Hz then took 1.8 of the 2 cores. Its loop fell to 155-185 Hz, and the master saw
+every slave's heartbeat lost (a 0.17 s gap against the 0.15 s consumer time). At 100 Hz it
+holds its rate.
 The loop's behaviour at 200 Hz is measured by bench/closed_loop.py and bench/driver.py, where
 a slow machine shows as a number, not as a failed test.
 """
