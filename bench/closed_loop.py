@@ -6,9 +6,11 @@ boards behind the hardware driver on a udp_multicast CAN bus (issue 6), the two 
 ``--repeats`` times. For each joint and trial it reports the tracking error (actual minus
 reference joint angle, deg: RMS, minimum, maximum; the median over the repeats) side by side,
 with the whole system's CPU share (percent of one core, /proc over the middle of the trials)
-and the FATAL events.
+the FATAL events and the rate at which each joint's state was published (Hz, the lowest of
+the four).
 
-Run: ``.venv/bin/python bench/closed_loop.py [--repeats 3]``.
+Run: ``.venv/bin/python bench/closed_loop.py [--repeats 3] [--rate 200] [--results NAME]``
+(results in ``bench/results/NAME.{json,txt}``, ``closed_loop`` by default).
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from typing import Any
 import numpy as np
 from common import describe_machine, on_this_machine, trial_cpu_shares
 
-from exo_has_control.analysis import read_session, tracking
+from exo_has_control.analysis import rates, read_session, tracking
 from exo_has_control.report import segments_of
 from exo_has_control.session import Session, SessionConfig
 
@@ -30,9 +32,9 @@ RESULTS = Path(__file__).resolve().parent / 'results'
 MOTIONS, DURATIONS = ('walk', 'squat'), (10.0, 8.0)
 
 
-def run(hardware: str, folder: Path) -> dict[str, Any]:
-    """One session; return its tracking rows, CPU share and FATAL events."""
-    session = Session(SessionConfig(MOTIONS, DURATIONS, hardware=hardware), folder)
+def run(hardware: str, folder: Path, rate: float) -> dict[str, Any]:
+    """One session at ``rate`` [Hz]; its tracking rows, CPU share, FATAL events, state rate."""
+    session = Session(SessionConfig(MOTIONS, DURATIONS, rate, hardware=hardware), folder)
     session.start(show=lambda line: None)
     try:
         shares = trial_cpu_shares(session, sum(DURATIONS))
@@ -47,6 +49,8 @@ def run(hardware: str, folder: Path) -> dict[str, Any]:
                                                      'max': r.maximum} for r in rows},
         'cpu_percent': {name: round(share, 1) for name, share in shares.items()},
         'fatal_events': sum(1 for e in data.events if e.severity >= 3),
+        'state_rate_hz': min(value for topic, value in rates(data).items()
+                             if topic.endswith('/has_state')),
     }
 
 
@@ -54,13 +58,15 @@ def main() -> None:
     """Run the sessions and write bench/results/closed_loop.{json,txt}."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--repeats', type=int, default=3)
+    parser.add_argument('--rate', type=float, default=200.0, help='session rate [Hz]')
+    parser.add_argument('--results', default='closed_loop', help='name of the results files')
     args = parser.parse_args()
     on_this_machine()
     runs = []
     with tempfile.TemporaryDirectory() as scratch:
         for repeat in range(args.repeats):
             for hardware in ('plants', 'can'):
-                runs.append(run(hardware, Path(scratch) / f'{hardware}_{repeat}'))
+                runs.append(run(hardware, Path(scratch) / f'{hardware}_{repeat}', args.rate))
                 print(json.dumps(runs[-1]), flush=True)
     machine = describe_machine()
     medians: dict[str, dict[str, dict[str, float]]] = {}
@@ -71,11 +77,12 @@ def main() -> None:
                                    for stat in ('rms', 'min', 'max')} for key in rows[0]}
         medians[hardware]['system'] = {
             'cpu_percent': float(np.median([sum(r['cpu_percent'].values()) for r in mine])),
-            'fatal_events': float(sum(r['fatal_events'] for r in mine))}
+            'fatal_events': float(sum(r['fatal_events'] for r in mine)),
+            'state_rate_hz': float(min(r['state_rate_hz'] for r in mine))}
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / 'closed_loop.json').write_text(
+    (RESULTS / f'{args.results}.json').write_text(
         json.dumps({'machine': machine, 'medians': medians, 'runs': runs}, indent=1) + '\n')
-    lines = [f'bench/closed_loop.py --repeats {args.repeats}: {machine}',
+    lines = [f'bench/closed_loop.py --repeats {args.repeats} --rate {args.rate:g}: {machine}',
              'tracking error [deg], median over the repeats: plant nodes | CAN driver',
              f'{"joint trial":24s} {"rms":>6s} {"min":>6s} {"max":>6s} | '
              f'{"rms":>6s} {"min":>6s} {"max":>6s}']
@@ -88,8 +95,9 @@ def main() -> None:
     for hardware in ('plants', 'can'):
         system = medians[hardware]['system']
         lines.append(f'{hardware}: whole system {system["cpu_percent"]:.1f} % of one core '
-                     f'(median), FATAL events in all runs: {system["fatal_events"]:.0f}')
-    (RESULTS / 'closed_loop.txt').write_text('\n'.join(lines) + '\n')
+                     f'(median), FATAL events in all runs: {system["fatal_events"]:.0f}, '
+                     f'state published at {system["state_rate_hz"]:.1f} Hz at least')
+    (RESULTS / f'{args.results}.txt').write_text('\n'.join(lines) + '\n')
     print('\n'.join(lines))
 
 
