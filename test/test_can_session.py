@@ -18,6 +18,19 @@ every slave's heartbeat lost (a 0.17 s gap against the 0.15 s consumer time). At
 holds its rate.
 The loop's behaviour at 200 Hz is measured by bench/closed_loop.py and bench/driver.py, where
 a slow machine shows as a number, not as a failed test.
+
+The devices and the driver's I/O thread run under SCHED_FIFO (``REALTIME_PRIORITY``), as
+the drives' firmware and a robot PC's bus thread would: with a busy loop beside the session
+on one of the two cores, under the default scheduler a sensor board's heartbeat went
+unheard for 0.155 s (FATAL, every joint stopped); under SCHED_FIFO the state samples came at
+most 18 ms apart and the session ended with no fatal event (2026-11-26).
+
+The walk strides at 0.4 Hz, not the paper's 0.85 Hz: this file tests the driver's path,
+and at 0.85 Hz the knee cylinder is asked for 0.31 m/s against the 0.17 m/s the pump gives
+at 4000 r/min, so the knee's error is the growing lag of a saturated motor, which every late
+sample lengthens. At 100 Hz on 2026-11-26 its peaks ranged 27 to 32 deg here and reached
+38.5 deg on the CI machine (a failed run). At 0.4 Hz the cylinders are asked for at most
+0.16 m/s. The paper's walk is tracked by the plant-node sessions at 200 Hz (test_session.py).
 """
 
 from __future__ import annotations
@@ -29,22 +42,24 @@ import pytest
 from session_observer import Observer, observed_session, read_so_far
 
 from exo_has_control.analysis import rates, tracking
-from exo_has_control.report import segments_of
 from exo_has_control.session import Session, SessionConfig
 from exo_has_runtime.joints import JOINT_NAMES
 
 MOTIONS, DURATIONS = ('walk', 'squat'), (8.0, 8.0)
 RATE = 100.0  # Hz: see the module docstring
-# Wider than the plant-node loop's bounds (test_session.py, 200 Hz). A drive applies a command
-# at the SYNC after it arrives, and the driver publishes a sample at its tick after the SYNC.
-# At 100 Hz that adds up to two 10 ms periods of delay to the loop. In walking, the knee's
-# motor saturates (the rodless flow area's top speed, 0.172 m/s, under the gait's 0.31 m/s),
-# and the delay adds to the lag and the overshoot. Measured on 2026-11-26, two sessions at
-# 100 Hz: knee peaks 29.2-33.0 deg, hip walking peaks 7.1-7.4 deg, hip squats within -0.8 to
-# 1.0 deg; one at 200 Hz on the slowed machine: 32.1-35.5 deg, 7.5-8.5 deg, -1.1 to 2.5 deg.
-HIP_SQUAT_BAND = (-3.5, 4.5)  # deg
-HIP_WALK_PEAK = 10.0  # deg
-KNEE_PEAK = 37.0  # deg
+STRIDE_FREQUENCY = 0.4  # Hz: see the module docstring
+REALTIME_PRIORITY = 20  # SCHED_FIFO, under the kernel's threaded interrupts at 50
+# The walk is judged after its start ramp (1 s). The knees sink under their load while the
+# driver starts up, and stand 12 to 17 deg flexed when the first reference (0 deg) comes:
+# that start tests the motors' top speed, not the driver's path.
+WINDOWS = (('walk', 1.0, 8.0), ('squat', 8.0, 16.0))  # s from the first reference
+# A drive applies a command at the SYNC after it arrives, and the driver publishes a sample at
+# its tick after the SYNC: at 100 Hz up to two 10 ms periods of delay in the loop. Measured on
+# 2026-11-26 in three sessions, one with a busy loop on one of the two cores: hip peaks 0.9
+# (2.1 with the busy loop) deg, knee peaks 4.6 (8.4) deg. A loop that does not close through
+# the driver misses by tens of degrees.
+HIP_PEAK = 4.0  # deg
+KNEE_PEAK = 12.0  # deg
 FAULT_BOUND = 0.25  # s: injection to the driver's FATAL event (a few 10 ms cycles + scheduling)
 STOP_BOUND = 0.5  # s: injection to every motor reported below STOPPED_SPEED
 STOPPED_SPEED = 2.0  # rad/s
@@ -54,7 +69,9 @@ FATAL = 3
 
 @pytest.fixture(scope='module')
 def session(tmp_path_factory):
-    config = SessionConfig(MOTIONS, DURATIONS, RATE, hardware='can')
+    config = SessionConfig(
+        MOTIONS, DURATIONS, RATE, hardware='can', realtime_priority=REALTIME_PRIORITY,
+        node_arguments={'gait_publisher': ('-p', f'stride_frequency:={STRIDE_FREQUENCY}')})
     with observed_session(config, tmp_path_factory.mktemp('can_session')) as pair:
         yield pair
 
@@ -65,17 +82,11 @@ def recorded(session):
     return read_so_far(running)
 
 
-def test_the_joints_track_through_the_driver_within_their_bounds(
-        recorded):
-    rows = tracking(recorded, segments_of(MOTIONS, DURATIONS))
+def test_the_joints_track_through_the_driver_within_their_bounds(recorded):
+    rows = tracking(recorded, WINDOWS)
     assert len(rows) == 8
     for row in rows:
-        if row.joint.endswith('hip') and row.segment.endswith('squat'):
-            assert HIP_SQUAT_BAND[0] <= row.minimum and row.maximum <= HIP_SQUAT_BAND[1], row
-        elif row.joint.endswith('hip'):
-            assert row.peak <= HIP_WALK_PEAK, row
-        else:
-            assert row.peak <= KNEE_PEAK, row
+        assert row.peak <= (HIP_PEAK if row.joint.endswith('hip') else KNEE_PEAK), row
 
 
 def test_walking_and_squatting_through_the_driver_raise_no_fatal_event(recorded):

@@ -188,8 +188,8 @@ class SessionConfig:
         Multicast group of the simulated CAN bus; empty: a random one per session, so that
         sessions on one machine do not share a bus.
     realtime_priority : int
-        SCHED_FIFO priority of the plants' loops, or of the driver's I/O thread (0: the
-        default scheduler; see exo_has_runtime.realtime).
+        SCHED_FIFO priority of the plants' loops, or of the driver's I/O thread and the
+        simulated CAN devices (0: the default scheduler; see exo_has_runtime.realtime).
     hosts : int
         1: every node on this machine. 2: the robot side (joints, controller, watchdog and a
         recorder of its own, ``robot_recorder``) and the operator side (gait publisher and
@@ -261,7 +261,8 @@ def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
         specs.append(NodeSpec('can_devices', 'exo_has_driver.devices.main', (
             '--interface', 'udp_multicast', '--channel', channel,
             '--load-mass-hip', f'{config.load_mass["hip"]}',
-            '--load-mass-knee', f'{config.load_mass["knee"]}'), ready=r'can devices ready',
+            '--load-mass-knee', f'{config.load_mass["knee"]}',
+            '--realtime-priority', f'{config.realtime_priority}'), ready=r'can devices ready',
             stdin=True))
         specs.append(NodeSpec('driver', 'exo_has_driver.driver_node', (
             '--ros-args', '-p', 'interface:=udp_multicast', '-p', f'channel:={channel}',

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 import queue
 import signal
 import struct
@@ -12,6 +13,7 @@ import threading
 import time
 import uuid
 from collections.abc import Iterator
+from pathlib import Path
 
 import can
 import pytest
@@ -90,6 +92,10 @@ def test_main_rejects_an_unknown_joint_and_a_bad_channel(
     assert main(['--interface', 'udp_multicast', '--channel', 'not-a-group']) == 2
     assert "cannot open CAN interface 'udp_multicast' channel 'not-a-group'" in \
         capsys.readouterr().err
+    with pytest.raises(SystemExit) as stopped:
+        main(['--interface', 'virtual', '--realtime-priority', '99'])
+    assert stopped.value.code == 2
+    assert '--realtime-priority must lie within 0 and 49, got 99' in capsys.readouterr().err
 
 
 def _lines(stream: subprocess.Popen[str], into: queue.Queue[str]) -> None:
@@ -121,18 +127,30 @@ def _frame(bus: can.BusABC, cob_id: int) -> bytes:
     raise AssertionError(msg_text)
 
 
+def _policies(pid: int) -> list[int]:
+    """Return the scheduling policy of every thread of process ``pid``."""
+    return [os.sched_getscheduler(int(task.name)) for task in Path(f'/proc/{pid}/task').iterdir()]
+
+
 def test_the_process_runs_the_devices_over_udp_multicast_and_takes_stdin_faults() -> None:
     group = random_multicast_group()
     bus = can.Bus(interface='udp_multicast', channel=group)
     assert isolate_multicast(bus)  # other tests on the machine use the same port
     process = subprocess.Popen(
         [sys.executable, '-m', 'exo_has_driver.devices.main', '--interface', 'udp_multicast',
-         '--channel', group, '--joints', 'left_hip'],
+         '--channel', group, '--joints', 'left_hip', '--realtime-priority', '10'],
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     lines: queue.Queue[str] = queue.Queue()
     threading.Thread(target=_lines, args=(process, lines), daemon=True).start()
     try:
         assert 'left_hip' in _expect(lines, 'can devices ready')
+        # The main thread, the bus's listener, the rig's timer and the stdin reader run as the
+        # drives' firmware would (numpy's idle BLAS threads, started at import, stay as they
+        # were), unless the machine refuses: then the process says so on stderr, read at the end.
+        refused = os.sched_getscheduler(process.pid) == os.SCHED_OTHER
+        if not refused:
+            assert _policies(process.pid).count(os.SCHED_FIFO) >= 4
+            assert os.sched_getparam(process.pid).sched_priority == 10
         assert _frame(bus, cd.HEARTBEAT_BASE + 1) in (b'\x00', b'\x7f')
         assert _frame(bus, cd.HEARTBEAT_BASE + 17) in (b'\x00', b'\x7f')
         assert process.stdin is not None
@@ -146,6 +164,8 @@ def test_the_process_runs_the_devices_over_udp_multicast_and_takes_stdin_faults(
         process.send_signal(signal.SIGTERM)
         assert process.wait(timeout=TIMEOUT) == 0
         _expect(lines, 'can devices stopped')
+        assert process.stderr is not None
+        assert ('no permission for SCHED_FIFO' in process.stderr.read()) == refused
     finally:
         if process.poll() is None:
             process.kill()

@@ -82,6 +82,7 @@ class Devices:
                 self.process.wait()
         self.process.stdin.close()
         self.log.close()
+        Path(self.log.name).unlink(missing_ok=True)
 
 
 class Peers:

@@ -50,6 +50,7 @@ from exo_has_driver import can_dictionary as cd
 from exo_has_driver.devices.rig import DEFAULT_LOAD_MASS, Rig
 from exo_has_driver.errors import DriverError, FaultInjectionError
 from exo_has_driver.hardware.bus import open_bus
+from exo_has_runtime.realtime import MAX_PRIORITY, set_realtime_priority
 from exo_has_sim.errors import SimError
 
 _COMMANDS = ('fault', 'heartbeat', 'sensor', 'silence', 'load', 'clear', 'status', 'help')
@@ -176,6 +177,10 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument('--tick', type=float, default=cd.SYNC_PERIOD,
                         help='timer period [s]: heartbeats, and advancing the plants when no '
                              'SYNC comes (default: %(default)s)')
+    parser.add_argument('--realtime-priority', type=int, default=0, metavar='N',
+                        help=f'SCHED_FIFO priority (1 to {MAX_PRIORITY}) of the threads that run '
+                             'the devices, as the drives and boards run on microcontrollers of '
+                             'their own; 0: the default scheduler (default: %(default)s)')
     parser.add_argument('--log-level', default='INFO',
                         choices=['DEBUG', 'INFO', 'WARNING', 'ERROR'])
     return parser
@@ -194,6 +199,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     for name in ('load_mass_hip', 'load_mass_knee', 'initial_angle', 'tick'):
         if not math.isfinite(getattr(args, name)):
             parser.error(f'--{name.replace("_", "-")} must be finite')
+    if not 0 <= args.realtime_priority <= MAX_PRIORITY:
+        parser.error(f'--realtime-priority must lie within 0 and {MAX_PRIORITY}, '
+                     f'got {args.realtime_priority}')
+    # Set before the bus and the rig start their threads, which inherit the scheduling class
+    # (numpy's BLAS threads, started at import, stay ordinary: they spin-wait after work).
+    problem = set_realtime_priority(args.realtime_priority)
+    if problem is not None:
+        logging.getLogger('can_devices').warning('--realtime-priority: %s', problem)
     try:
         # The bit rate matters only to interfaces that set it (not SocketCAN, nor simulated).
         bus = open_bus(args.interface, args.channel, 1_000_000)
