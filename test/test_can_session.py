@@ -42,6 +42,7 @@ import pytest
 from session_observer import Observer, observed_session, read_so_far
 
 from exo_has_control.analysis import rates, tracking
+from exo_has_control.report import segments_of
 from exo_has_control.session import Session, SessionConfig
 from exo_has_runtime.joints import JOINT_NAMES
 
@@ -52,7 +53,9 @@ REALTIME_PRIORITY = 20  # SCHED_FIFO, under the kernel's threaded interrupts at 
 # The walk is judged after its start ramp (1 s). The knees sink under their load while the
 # driver starts up, and stand 12 to 17 deg flexed when the first reference (0 deg) comes:
 # that start tests the motors' top speed, not the driver's path.
-WINDOWS = (('walk', 1.0, 8.0), ('squat', 8.0, 16.0))  # s from the first reference
+WALK_START = 1.0  # s
+WINDOWS = [(name, start + (WALK_START if name.endswith('walk') else 0.0), end)
+           for name, start, end in segments_of(MOTIONS, DURATIONS)]
 # A drive applies a command at the SYNC after it arrives, and the driver publishes a sample at
 # its tick after the SYNC: at 100 Hz up to two 10 ms periods of delay in the loop. Measured on
 # 2026-11-26 in three sessions, one with a busy loop on one of the two cores: hip peaks 0.9

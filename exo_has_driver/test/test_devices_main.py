@@ -95,7 +95,8 @@ def test_main_rejects_an_unknown_joint_and_a_bad_channel(
     with pytest.raises(SystemExit) as stopped:
         main(['--interface', 'virtual', '--realtime-priority', '99'])
     assert stopped.value.code == 2
-    assert '--realtime-priority must lie within 0 and 49, got 99' in capsys.readouterr().err
+    assert '--realtime-priority: a real-time priority must be an integer within 0 and 49, got 99' \
+        in capsys.readouterr().err
 
 
 def _lines(stream: subprocess.Popen[str], into: queue.Queue[str]) -> None:

@@ -199,12 +199,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     for name in ('load_mass_hip', 'load_mass_knee', 'initial_angle', 'tick'):
         if not math.isfinite(getattr(args, name)):
             parser.error(f'--{name.replace("_", "-")} must be finite')
-    if not 0 <= args.realtime_priority <= MAX_PRIORITY:
-        parser.error(f'--realtime-priority must lie within 0 and {MAX_PRIORITY}, '
-                     f'got {args.realtime_priority}')
     # Set before the bus and the rig start their threads, which inherit the scheduling class
     # (numpy's BLAS threads, started at import, stay ordinary: they spin-wait after work).
-    problem = set_realtime_priority(args.realtime_priority)
+    try:
+        problem = set_realtime_priority(args.realtime_priority)
+    except ValueError as error:
+        parser.error(f'--realtime-priority: {error}')
     if problem is not None:
         logging.getLogger('can_devices').warning('--realtime-priority: %s', problem)
     try:
