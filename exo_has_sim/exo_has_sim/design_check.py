@@ -25,6 +25,7 @@ from exo_has_sim.parameters import HasParameters, load_parameters
 
 PAPER_P, PAPER_D = 35.0, 15.0  # section 5.1, units not stated
 PAPER_BANDWIDTH_HZ = 2.54  # section 5.1
+PAPER_STRIDE_FREQUENCY = 0.85  # Hz, section 5.2
 RPM = 2.0 * math.pi / 60.0  # rad/s per r/min
 
 
@@ -152,6 +153,22 @@ def design_check(params: HasParameters) -> list[Row]:
         f'({stroke / params.walking_stroke - 1:+.1%}): the paper used '
         'CGA data (not at hand) and its linkage dimensions are lost with Fig. 7 and Table 1, '
         'so the linkage was chosen for this match; it confirms the geometry, not the data'))
+    # The paper's 140 mm/s is the peak of its walking stroke curve's derivative (section 3.1),
+    # the figure its no-load speed was sized for.
+    phase = np.linspace(0.0, 1.0, 10_001)
+    hip, knee = gait.angles_at(phase)
+    swing = linkage.cylinder_length(hip if params.joint_type == 'hip' else knee)
+    per_cycle = float(np.max(np.abs(np.gradient(swing, phase))))  # m per gait cycle
+    walking = per_cycle * PAPER_STRIDE_FREQUENCY
+    sine = math.pi * stroke * PAPER_STRIDE_FREQUENCY
+    rows.append(Row(
+        'walking_speed', f'peak cylinder speed of the Winter walk of the {params.joint_type} '
+        f'at {PAPER_STRIDE_FREQUENCY} strides/s', 'm/s', params.no_load_speed, walking,
+        f"{walking / params.no_load_speed:.2f} times the paper's {params.no_load_speed} m/s, "
+        f'and {"within" if walking <= speed else "ABOVE"} the {speed:.3f} m/s no-load speed, '
+        f'which suffices up to {speed / per_cycle:.2f} strides/s; a sine over the same stroke '
+        f"would peak at {sine:.3f} m/s: the paper's figure is near a sine's, smoother than "
+        "Winter's swing, and its CGA data are not at hand to tell why"))
     return rows
 
 
