@@ -21,16 +21,19 @@ a slow machine shows as a number, not as a failed test.
 
 The devices and the driver's I/O thread run under SCHED_FIFO (``REALTIME_PRIORITY``), as
 the drives' firmware and a robot PC's bus thread would: with a busy loop beside the session
-on one of the two cores, under the default scheduler a sensor board's heartbeat went
-unheard for 0.155 s (FATAL, every joint stopped); under SCHED_FIFO the state samples came at
-most 18 ms apart and the session ended with no fatal event (2026-11-26).
+on one of the two cores, under the default scheduler a sensor board's heartbeat once went
+unheard for 0.155 s (FATAL, every joint stopped; an ad hoc session with this file's observer,
+2026-11-26); under SCHED_FIFO the state samples came at most 18 ms apart and the session
+ended with no fatal event.
 
 The walk strides at 0.4 Hz, not the paper's 0.85 Hz: this file tests the driver's path,
-and at 0.85 Hz the knee cylinder is asked for 0.31 m/s against the 0.17 m/s the pump gives
-at 4000 r/min, so the knee's error is the growing lag of a saturated motor, which every late
-sample lengthens. At 100 Hz on 2026-11-26 its peaks ranged 27 to 32 deg here and reached
-38.5 deg on the CI machine (a failed run). At 0.4 Hz the cylinders are asked for at most
-0.16 m/s. The paper's walk is tracked by the plant-node sessions at 200 Hz (test_session.py).
+and at 0.85 Hz the knee cylinder is asked for 0.305 m/s against the 0.172 m/s the pump gives
+at 4000 r/min (``exo-has design-check --joint knee``: enough up to 0.48 strides/s), so the
+knee's error is the growing lag of a saturated motor, which every late sample lengthens. At
+100 Hz on 2026-11-26 its peaks reached 32.2 deg here (bench/closed_loop.py
+--stride-frequency 0.85) and 38.5 deg on the CI machine (a failed run). At 0.4 Hz the
+knee's steady walk asks 0.143 m/s. The paper's walk is tracked by the plant-node sessions at
+200 Hz (test_session.py).
 """
 
 from __future__ import annotations
@@ -57,10 +60,10 @@ WALK_START = 1.0  # s
 WINDOWS = [(name, start + (WALK_START if name.endswith('walk') else 0.0), end)
            for name, start, end in segments_of(MOTIONS, DURATIONS)]
 # A drive applies a command at the SYNC after it arrives, and the driver publishes a sample at
-# its tick after the SYNC: at 100 Hz up to two 10 ms periods of delay in the loop. Measured on
-# 2026-11-26 in three sessions, one with a busy loop on one of the two cores: hip peaks 0.9
-# (2.1 with the busy loop) deg, knee peaks 4.6 (8.4) deg. A loop that does not close through
-# the driver misses by tens of degrees.
+# its tick after the SYNC: at 100 Hz up to two 10 ms periods of delay in the loop. Worst peaks
+# of three sessions each under these conditions (bench/closed_loop.py, bench/README.md,
+# 2026-11-26): hips 1.25 deg, knees 4.26 deg; with a process spinning on one of the two cores,
+# 2.35 and 4.61 deg. A loop that does not close through the driver misses by tens of degrees.
 HIP_PEAK = 4.0  # deg
 KNEE_PEAK = 12.0  # deg
 FAULT_BOUND = 0.25  # s: injection to the driver's FATAL event (a few 10 ms cycles + scheduling)
