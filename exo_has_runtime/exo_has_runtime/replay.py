@@ -5,6 +5,9 @@ serialized message, never deserialised here), at its bag time since the first re
 divided by ``--rate``, measured on the steady clock; each topic is published with the QoS its
 bag recorded (:func:`exo_has_runtime.recording.replay_qos`). A 1 ms timer does the publishing,
 so messages leave up to about a millisecond late (more on a loaded machine), never early.
+At the end, before it leaves the graph, the replay waits (up to ``ACK_TIMEOUT_S``) for every
+reliable subscriber to acknowledge what it was sent: a publisher destroyed right after its
+last message can take that message with it (a clean CI run once lost the last of 400).
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ from contextlib import ExitStack
 from pathlib import Path
 
 from rclpy.clock import Clock, ClockType
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 
@@ -32,6 +36,7 @@ from exo_has_runtime.recording import (
 )
 
 _TICK_S = 0.001  # publishing resolution
+ACK_TIMEOUT_S = 2.0  # s: at most this long for the subscribers' acknowledgements at the end
 
 
 class Replayer(Node):
@@ -120,8 +125,23 @@ class Replayer(Node):
                 self._open()
                 return
             self.get_logger().info(f'replayed {self._published} messages')
+            unacknowledged = self._wait_for_acknowledgements()
+            if unacknowledged:
+                self.get_logger().warning(
+                    f'not acknowledged within {ACK_TIMEOUT_S:g} s on {", ".join(unacknowledged)}:'
+                    ' a subscriber there may miss the last messages')
             # Ends the spinning (run_node then destroys the node).
             self.context.try_shutdown()
+
+    def _wait_for_acknowledgements(self) -> list[str]:
+        """Wait for the reliable subscribers' acknowledgements; return the topics still waiting."""
+        deadline_ns = self._steady.now().nanoseconds + int(ACK_TIMEOUT_S * 1e9)
+        waiting = []
+        for topic, publisher in self._outputs.items():
+            left_ns = max(0, deadline_ns - self._steady.now().nanoseconds)
+            if not publisher.wait_for_all_acked(Duration(nanoseconds=left_ns)):
+                waiting.append(topic)
+        return waiting
 
     def _subscribed(self) -> bool:
         if not self._wait_for_subscribers:

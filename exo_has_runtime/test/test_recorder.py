@@ -1,6 +1,8 @@
 import re
 import signal
 import statistics
+import subprocess
+import sys
 import threading
 import time
 
@@ -228,3 +230,43 @@ def test_replay_of_a_bag_whose_types_are_unknown_here_fails_naming_them(tmp_path
         in replay.output
     assert re.search(r'\[FATAL\] .*none of the topics of .*bag can be published here',
                      replay.output), replay.output
+
+
+LISTENER = """
+import rclpy
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+rclpy.init()
+node = Node('frozen_listener')
+node.create_subscription(JointState, '/joint_reference', lambda m: print('got', flush=True), 10)
+rclpy.spin(node)
+"""
+
+
+def test_a_replay_waits_for_its_subscribers_acknowledgements_and_names_a_topic_left_waiting(
+        tmp_path):
+    source = tmp_path / 'source'
+    with BagWriter(source) as writer:
+        writer.add_topic('/joint_reference', JOINTS, [offered_qos(RELIABLE)])
+        for i in range(20):
+            writer.write('/joint_reference', 1_700_000_000_000_000_000 + i * 50_000_000,
+                         serialize_message(JointState(position=[float(i)])))
+    listener = subprocess.Popen([sys.executable, '-c', LISTENER], stdout=subprocess.PIPE,
+                                text=True, cwd=tmp_path)
+    try:
+        with NodeProcess(REPLAY, [str(source), '--wait-for-subscribers']) as replay:
+            assert listener.stdout is not None
+            assert listener.stdout.readline() == 'got\n'
+            # Frozen, the listener's DDS threads acknowledge nothing more.
+            listener.send_signal(signal.SIGSTOP)
+            frozen = time.monotonic()
+            assert replay.wait(timeout_s=60) == 0
+            ended = time.monotonic() - frozen
+        assert 'replayed 20 messages' in replay.output
+        assert re.search(r'not acknowledged within 2 s on /joint_reference', replay.output), \
+            replay.output
+        assert ended >= 2.0  # the wait for acknowledgements, then an end
+    finally:
+        listener.send_signal(signal.SIGCONT)
+        listener.kill()
+        listener.wait()
