@@ -51,9 +51,9 @@ class ReferenceFollower:
         self.timeout = timeout
         self.rejoin_speed = rejoin_speed
         self._target: tuple[float, float, float] | None = None  # (t [s], x [m], v [m/s])
-        # While rejoining: the time [s] the ramp was last moved (None: not yet) and its
-        # position [m].
-        self._ramp: tuple[float | None, float] | None = None
+        # While rejoining: the time [s] the ramp was last moved (None: not yet), its position
+        # [m] and the reference's offset from it [m] then (0: no reference yet).
+        self._ramp: tuple[float | None, float, float] | None = None
 
     def take(self, t: float, names: Sequence[str], angles: Sequence[float],
              rates: Sequence[float]) -> str | None:
@@ -93,7 +93,7 @@ class ReferenceFollower:
         None (nothing measured yet): wait for a reference, as at the start.
         """
         self.hold(position)
-        self._ramp = None if position is None else (None, position)
+        self._ramp = None if position is None else (None, position, 0.0)
 
     def target(self, t: float, measured: float) -> tuple[float, float]:
         """Cylinder position [m] and velocity [m/s] to track at t [s].
@@ -107,12 +107,15 @@ class ReferenceFollower:
             v = 0.0
         if self._ramp is None:
             return x, v
-        moved, ramp = self._ramp
+        moved, ramp, side = self._ramp
         step = 0.0 if moved is None else self.rejoin_speed * max(0.0, t - moved)
         gap = x - ramp
-        if abs(gap) <= step and received > -math.inf:
-            self._ramp = None  # caught up with a reference taken since the hold
+        if received > -math.inf and (abs(gap) <= step or gap * side < 0.0):
+            # Caught up with a reference taken since the hold: within a step, or the
+            # reference crossed the ramp since the last call (in walking it moves several
+            # times faster than the ramp, and passes it by more than a step per period).
+            self._ramp = None
             return x, v
         ramp += math.copysign(min(step, abs(gap)), gap)
-        self._ramp = (t, ramp)
+        self._ramp = (t, ramp, gap if received > -math.inf else 0.0)
         return ramp, math.copysign(self.rejoin_speed, gap) if gap else 0.0

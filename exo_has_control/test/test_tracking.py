@@ -55,6 +55,63 @@ def test_after_a_rejoin_the_target_ramps_to_a_distant_reference_at_the_rejoin_sp
     assert targets[1][1] == pytest.approx(0.05)  # the ramp's speed as the feedforward
 
 
+def test_a_reference_sweeping_past_the_ramp_is_joined_where_it_crosses():
+    f = follower(rejoin_speed=0.05)
+    stand = LINKAGE.position_at(1.0)
+    f.rejoin(stand)
+    # The reference starts beyond the ramp and sweeps back through it at about 0.2 m/s, four
+    # times the rejoin speed; from 0.42 rad it passes the ramp between two periods, never
+    # coming within a step of it.
+    rate = -0.2 / LINKAGE.velocity_at(0.42, 1.0)  # rad/s
+    side = LINKAGE.position_at(0.42) - stand
+    ramp, crossed = stand, None
+    for k in range(200):
+        t = k * PERIOD
+        angle = 0.42 + rate * t
+        take(f, t, angle, rate)
+        if crossed is None and (LINKAGE.position_at(angle) - ramp) * side < 0.0:
+            crossed = t  # the reference is past where the ramp stood a period ago
+        x, v = f.target(t, stand)
+        if not f.rejoining:
+            break
+        ramp = x
+        assert v == pytest.approx(math.copysign(0.05, side))
+    assert crossed is not None and not f.rejoining
+    assert t == crossed  # joined in the period it crossed, not chased on
+    assert (x, v) == (pytest.approx(LINKAGE.position_at(angle)),
+                      pytest.approx(LINKAGE.velocity_at(angle, rate)))
+
+
+def test_after_a_hold_in_walking_every_joint_rejoins_within_a_stride_from_any_phase():
+    from exo_has_control.trajectory import Schedule, TrialPlan
+    from exo_has_runtime.joints import JOINT_NAMES
+    from exo_has_sim.gait import WINTER, load_gait_cycle
+
+    gait = load_gait_cycle(WINTER)
+    t = np.arange(0.0, 12.0, PERIOD)
+    angles, rates = (np.asarray(a) for a in Schedule((TrialPlan('walk', 12.0),))
+                     .references(gait, t))
+    stride = 1.0 / TrialPlan('walk', 12.0).stride_frequency  # s
+    rng = np.random.default_rng(12)
+    for index, joint in enumerate(JOINT_NAMES[:2]):  # left hip and knee: both sides alike
+        params = load_parameters('hip' if joint.endswith('hip') else 'knee')
+        linkage = Linkage.from_parameters(params)
+        worst = 0.0
+        for _ in range(60):
+            # Held where the joint stood 2-5 s before control resumes at a random phase.
+            resume, held = int(rng.uniform(5.0, 7.0) / PERIOD), int(rng.uniform(2.0, 5.0) / PERIOD)
+            f = ReferenceFollower(joint, params, TIMEOUT)
+            f.rejoin(linkage.position_at(angles[resume - held, index]))
+            for i in range(resume, len(t)):
+                f.take(t[i], [joint], [angles[i, index]], [rates[i, index]])
+                f.target(t[i], 0.0)
+                if not f.rejoining:
+                    break
+            assert not f.rejoining, joint
+            worst = max(worst, t[i] - t[resume])
+        assert worst < stride, (joint, worst)
+
+
 def test_a_rejoin_with_nothing_measured_waits_for_a_reference_without_a_ramp():
     f = follower()
     f.rejoin(None)
