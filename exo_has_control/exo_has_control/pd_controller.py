@@ -4,11 +4,11 @@ For every joint listed in ``joints``, takes the reference angle from ``joint_ref
 (sensor_msgs/JointState, by name), turns it into a cylinder extension through the joint's
 linkage (paper Eq. 1), and answers every HAS state with a motor speed command: the loop runs at
 the rate of the position samples, as the paper's STM32 does at 200 Hz. Before the first
-reference a joint holds its first measured position. A FATAL safety event stops every joint
-(motor speed 0, drive disabled: the compact valve falls to free mode) until a RESET event; a
-lost reference (STALE_REFERENCE, latched) holds every joint where it stands, under control,
-references ignored, until a RESET event. After either, each joint rejoins the reference at no
-more than ``reference_rejoin_speed``::
+reference a joint holds its first measured position, and from there it joins the reference at
+no more than ``reference_rejoin_speed``. A FATAL safety event stops every joint (motor speed 0,
+drive disabled: the compact valve falls to free mode) until a RESET event; a lost reference
+(STALE_REFERENCE, latched) holds every joint where it stands, under control, references
+ignored, until a RESET event. After either, each joint rejoins the reference in the same way::
 
     ros2 run exo_has_control pd_controller --ros-args -p joints:="['left_hip', 'left_knee']"
 
@@ -61,8 +61,9 @@ class PdController(Node):
             floating_point_range=[FloatingPointRange(from_value=0.001, to_value=10.0)])).value
         rejoin_speed = self.declare_parameter(
             'reference_rejoin_speed', DEFAULT_REJOIN_SPEED, ParameterDescriptor(
-                description='fastest cylinder speed [m/s] at which a joint rejoins the '
-                            'reference after a stop or a hold', read_only=True,
+                description='fastest cylinder speed [m/s] at which a joint joins the '
+                            'reference at the start and after a stop or a hold',
+                read_only=True,
                 floating_point_range=[FloatingPointRange(from_value=0.001, to_value=1.0)])).value
         self._loops: dict[str, PositionLoop] = {}
         self._followers: dict[str, ReferenceFollower] = {}

@@ -4,9 +4,10 @@ A reference angle becomes a cylinder extension through the linkage (paper Eq. 1)
 angular velocity a cylinder velocity through the linkage's Jacobian. Angles beyond the linkage's
 reach are clamped to the stroke. A reference older than the timeout is held still: its velocity
 is dropped so that a dead reference publisher leaves the joint standing, not drifting.
-After a stop or a hold (:meth:`ReferenceFollower.rejoin`) the joint does not jump to a
-reference that moved on meanwhile: its target moves from where the joint stands toward the
-reference at no more than the rejoin speed, then follows it.
+At the start, and after a stop or a hold (:meth:`ReferenceFollower.rejoin`), the joint does
+not jump to a reference that is elsewhere (the joints of a wearer sink under load while the
+drives start) or that moved on meanwhile: its target moves from where the joint stands toward
+the reference at no more than the rejoin speed, then follows it.
 """
 
 from __future__ import annotations
@@ -54,6 +55,9 @@ class ReferenceFollower:
         # While rejoining: the time [s] the ramp was last moved (None: not yet), its position
         # [m] and the reference's offset from it [m] then (0: no reference yet).
         self._ramp: tuple[float | None, float, float] | None = None
+        # Whether the ramp starts at the next measured position (at the start, or a rejoin
+        # with nothing measured).
+        self._ramp_from_measured = True
 
     def take(self, t: float, names: Sequence[str], angles: Sequence[float],
              rates: Sequence[float]) -> str | None:
@@ -83,25 +87,35 @@ class ReferenceFollower:
         return self._ramp is not None
 
     def hold(self, position: float | None) -> None:
-        """Forget the reference and hold a position [m] (None: wait for a reference)."""
+        """Forget the reference and hold a position [m].
+
+        None (nothing measured yet): the next measured position, from which a reference taken
+        later is rejoined, as at the start.
+        """
         self._target = None if position is None else (-math.inf, position, 0.0)
         self._ramp = None
+        self._ramp_from_measured = position is None
 
     def rejoin(self, position: float | None) -> None:
         """Hold a position [m], then move toward the next references at the rejoin speed.
 
-        None (nothing measured yet): wait for a reference, as at the start.
+        None (nothing measured yet): from the next measured position, as at the start.
         """
         self.hold(position)
-        self._ramp = None if position is None else (None, position, 0.0)
+        if position is not None:
+            self._ramp = (None, position, 0.0)
 
     def target(self, t: float, measured: float) -> tuple[float, float]:
         """Cylinder position [m] and velocity [m/s] to track at t [s].
 
-        Before any reference, the first measured position is held.
+        Before any reference, the first measured position is held; from there the target
+        rejoins the reference (as after :meth:`rejoin`).
         """
         if self._target is None:
             self._target = (-math.inf, measured, 0.0)
+        if self._ramp_from_measured:
+            self._ramp_from_measured = False
+            self._ramp = (None, measured, 0.0)
         received, x, v = self._target
         if t - received > self.timeout:
             v = 0.0

@@ -27,6 +27,10 @@ def take(follower_, t, angle, rate=0.0):
 
 def test_a_reference_is_followed_at_once_and_held_still_once_it_is_old():
     f = follower()
+    x0 = LINKAGE.position_at(1.0)
+    take(f, 0.0, 1.0, 0.5)
+    assert f.target(0.0, x0)[0] == pytest.approx(x0)  # started where the reference is
+    assert not f.rejoining
     take(f, 0.0, 1.0, 0.5)
     x, v = f.target(0.05, 0.03)
     assert x == pytest.approx(LINKAGE.position_at(1.0))
@@ -112,12 +116,23 @@ def test_after_a_hold_in_walking_every_joint_rejoins_within_a_stride_from_any_ph
         assert worst < stride, (joint, worst)
 
 
-def test_a_rejoin_with_nothing_measured_waits_for_a_reference_without_a_ramp():
-    f = follower()
-    f.rejoin(None)
+@pytest.mark.parametrize('how', ['at the start', 'on a rejoin with nothing measured'])
+def test_the_first_reference_is_joined_from_the_first_measured_position_at_the_rejoin_speed(how):
+    f = follower(rejoin_speed=0.05)
+    if how != 'at the start':
+        f.rejoin(None)
+    sunk = LINKAGE.position_at(0.2)  # m: where the joint stands when control starts
+    assert f.target(0.0, sunk) == (sunk, 0.0)  # held before any reference
+    stand = LINKAGE.position_at(0.0)
+    positions = []
+    for t in np.arange(PERIOD, 1.0, PERIOD):
+        take(f, t, 0.0)
+        positions.append(f.target(t, sunk)[0])
+    steps = np.abs(np.diff([sunk, *positions]))
+    assert steps.max() <= 0.05 * PERIOD * (1 + 1e-9)  # no jump to the reference
+    caught = int(np.argmax(np.isclose(positions, stand)))
+    assert caught * PERIOD == pytest.approx((stand - sunk) / 0.05, abs=2 * PERIOD)
     assert not f.rejoining
-    take(f, 0.0, 1.0)
-    assert f.target(0.0, 0.05)[0] == pytest.approx(LINKAGE.position_at(1.0))
 
 
 def test_a_rejoin_speed_that_is_not_positive_is_refused():
