@@ -20,7 +20,7 @@ from __future__ import annotations
 from functools import partial
 from typing import Any
 
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
@@ -31,6 +31,7 @@ from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
 from exo_has_runtime.execution import run_node
 from exo_has_runtime.joints import JOINT_NAMES, check_joint, joint_type_of
 from exo_has_runtime.profiles import SAFETY_EVENT_QOS
+from exo_has_runtime.realtime import MAX_PRIORITY, set_realtime_priority
 from exo_has_runtime.topics import (
     JOINT_REFERENCE_TOPIC,
     SAFETY_EVENT_TOPIC,
@@ -65,6 +66,11 @@ class PdController(Node):
                             'reference at the start and after a stop or a hold',
                 read_only=True,
                 floating_point_range=[FloatingPointRange(from_value=0.001, to_value=1.0)])).value
+        priority = self.declare_parameter('realtime_priority', 0, ParameterDescriptor(
+            description='SCHED_FIFO priority of the thread that answers the states (0: the '
+                        'default scheduler; needs root or CAP_SYS_NICE, see '
+                        'exo_has_runtime.realtime)', read_only=True,
+            integer_range=[IntegerRange(from_value=0, to_value=MAX_PRIORITY, step=1)])).value
         self._loops: dict[str, PositionLoop] = {}
         self._followers: dict[str, ReferenceFollower] = {}
         self._command_publishers = {}
@@ -82,6 +88,12 @@ class PdController(Node):
                                  qos_profile_sensor_data)
         self.create_subscription(SafetyEvent, SAFETY_EVENT_TOPIC, self._on_event,
                                  SAFETY_EVENT_QOS)
+        # This thread spins the node; the DDS threads, created earlier, stay ordinary. A command
+        # held up behind other processes is a period of the joint without control
+        # (bench/closed_loop.py reports the longest gap between commands).
+        problem = set_realtime_priority(priority)
+        if problem:
+            self.get_logger().warning(f'realtime_priority: {problem}')
         gains = '; '.join(f'{joint}: kp {loop.gains.kp:g}, kd {loop.gains.kd:g}, '
                           f'kff {loop.gains.kff:.5g}, limit {loop.gains.speed_limit:.5g}'
                           for joint, loop in self._loops.items())

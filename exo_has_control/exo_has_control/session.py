@@ -189,7 +189,10 @@ class SessionConfig:
         sessions on one machine do not share a bus.
     realtime_priority : int
         SCHED_FIFO priority of the plants' loops, or of the driver's I/O thread and the
-        simulated CAN devices (0: the default scheduler; see exo_has_runtime.realtime).
+        simulated CAN devices (0: the default scheduler; see exo_has_runtime.realtime). Not
+        the controller's: beside the CAN test's observer, a controller under SCHED_FIFO held
+        off the driver's state publication (bench/README.md, "The controller under
+        SCHED_FIFO"); ``node_arguments`` can set its ``realtime_priority``.
     hosts : int
         1: every node on this machine. 2: the robot side (joints, controller, watchdog and a
         recorder of its own, ``robot_recorder``) and the operator side (gait publisher and

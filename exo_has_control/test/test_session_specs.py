@@ -80,6 +80,18 @@ def test_extra_arguments_reach_the_node_they_name_and_no_other():
     assert not any('batch:=false' in a for name, a in arguments.items() if name != 'watchdog')
 
 
+@pytest.mark.parametrize('hardware', ['plants', 'can'])
+def test_the_sessions_realtime_priority_reaches_the_joints_and_not_the_controller(hardware):
+    config = SessionConfig(hardware=hardware, realtime_priority=20, composition={})
+    arguments = {spec.name: ' '.join(spec.arguments) for spec in node_specs(config, None)}
+    assert 'realtime_priority' not in arguments['pd_controller']
+    joints = (['can_devices', 'driver'] if hardware == 'can'
+              else [f'{joint}_plant' for joint in JOINT_NAMES])
+    for name in joints:
+        assert 'realtime_priority:=20' in arguments[name] \
+            or '--realtime-priority 20' in arguments[name], name
+
+
 def test_extra_arguments_for_an_unknown_node_are_refused_by_name():
     with pytest.raises(ValueError, match='unknown node left_hip_plant: expected among'):
         SessionConfig(node_arguments={'left_hip_plant': ('-p', 'rate:=100.0')})
