@@ -107,6 +107,18 @@ class NodeProcess:
                 raise TimeoutError(msg)
             time.sleep(0.02)
 
+    def runs_at_realtime_priority(self, priority: int) -> bool:
+        """Whether the main thread runs under ``SCHED_FIFO`` at ``priority``.
+
+        Where the process said it had no permission for it (exo_has_runtime.realtime), whether
+        it runs under the default scheduler instead.
+        """
+        pid = self.process.pid
+        if 'no permission' in self.output:
+            return os.sched_getscheduler(pid) == os.SCHED_OTHER
+        return (os.sched_getscheduler(pid), os.sched_getparam(pid).sched_priority) == (
+            os.SCHED_FIFO, priority)
+
     def send(self, line: str) -> None:
         """Write a line to the process's standard input.
 
