@@ -122,12 +122,16 @@ class ReferenceFollower:
         if self._ramp is None:
             return x, v
         moved, ramp, side = self._ramp
-        step = 0.0 if moved is None else self.rejoin_speed * max(0.0, t - moved)
+        elapsed = 0.0 if moved is None else max(0.0, t - moved)
+        step = self.rejoin_speed * elapsed
         gap = x - ramp
-        if received > -math.inf and (abs(gap) <= step or gap * side < 0.0):
-            # Caught up with a reference taken since the hold: within a step, or the
-            # reference crossed the ramp since the last call (in walking it moves several
-            # times faster than the ramp, and passes it by more than a step per period).
+        # Caught up with a reference taken since the hold: within a step, or crossed by it
+        # since the last call. In walking the reference moves several times faster than the
+        # ramp and passes it by more than a step between two calls; by no more than its own
+        # motion, though (twice that, for references that come in bunches), where a
+        # reference that jumps across the ramp is still ramped to.
+        crossed = gap * side < 0.0 and abs(gap) <= step + 2.0 * abs(v) * elapsed
+        if received > -math.inf and (abs(gap) <= step or crossed):
             self._ramp = None
             return x, v
         ramp += math.copysign(min(step, abs(gap)), gap)

@@ -86,6 +86,19 @@ def test_a_reference_sweeping_past_the_ramp_is_joined_where_it_crosses():
                       pytest.approx(LINKAGE.velocity_at(angle, rate)))
 
 
+def test_a_reference_that_jumps_across_the_ramp_is_still_ramped_to():
+    f = follower(rejoin_speed=0.05)
+    stand = LINKAGE.position_at(0.5)
+    f.rejoin(stand)
+    take(f, 0.0, 0.3)  # on one side of the ramp, still
+    f.target(0.0, stand)
+    take(f, PERIOD, 1.2)  # then far on the other, in one message, still again
+    x, v = f.target(PERIOD, stand)
+    assert f.rejoining
+    assert abs(x - stand) <= 0.05 * PERIOD * (1 + 1e-9)
+    assert v == pytest.approx(math.copysign(0.05, LINKAGE.position_at(1.2) - stand))
+
+
 def test_after_a_hold_in_walking_every_joint_rejoins_within_a_stride_from_any_phase():
     from exo_has_control.trajectory import Schedule, TrialPlan
     from exo_has_runtime.joints import JOINT_NAMES
