@@ -1,7 +1,9 @@
 """The nodes that answer the control loop's samples take a real-time scheduling class.
 
 The plant and the PD controller each take ``realtime_priority``: SCHED_FIFO for the thread
-that spins the node (exo_has_runtime.realtime); the DDS threads stay ordinary.
+that spins the node (exo_has_runtime.realtime); the DDS threads stay ordinary. Without the
+right to it (not root, no CAP_SYS_NICE) a node runs under the default scheduler and says so,
+which is all these tests can check there; CI runs as root.
 """
 
 from __future__ import annotations

@@ -88,9 +88,10 @@ class PdController(Node):
                                  qos_profile_sensor_data)
         self.create_subscription(SafetyEvent, SAFETY_EVENT_TOPIC, self._on_event,
                                  SAFETY_EVENT_QOS)
-        # This thread spins the node; the DDS threads, created earlier, stay ordinary. A command
-        # held up behind other processes is a period of the joint without control
-        # (bench/closed_loop.py reports the longest gap between commands).
+        # This thread spins the node (in a container, every node composed with it); the DDS
+        # threads, created earlier, stay ordinary. A command held up behind other processes is
+        # a period of the joint without control (bench/closed_loop.py reports the longest gap
+        # between commands).
         problem = set_realtime_priority(priority)
         if problem:
             self.get_logger().warning(f'realtime_priority: {problem}')

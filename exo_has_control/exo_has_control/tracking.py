@@ -22,6 +22,11 @@ from exo_has_sim.parameters import HasParameters
 #: with the shipped gait), a third of either joint's in squatting (0.14-0.15 m/s), and fast
 #: enough to cross a whole stroke (0.13 m) in under 3 s, within the watchdog's start-up grace.
 DEFAULT_REJOIN_SPEED = 0.05
+#: Cylinder speed [m/s] up to which a reference that crosses the rejoin ramp between two
+#: calls counts as moving there, not jumping there: above the shipped gait's 0.31 m/s and
+#: twice the pumps' top speed (0.17-0.21 m/s). A reference message's own rate, twice over (for
+#: messages that come in bunches), raises it.
+CROSSING_SPEED = 0.5
 
 
 class ReferenceFollower:
@@ -36,8 +41,8 @@ class ReferenceFollower:
     timeout : float
         Age [s] after which the reference is held still.
     rejoin_speed : float
-        Fastest cylinder speed [m/s] at which the target rejoins the reference after
-        :meth:`rejoin`.
+        Fastest cylinder speed [m/s] at which the target joins the reference at the start
+        and after :meth:`rejoin`.
 
     """
 
@@ -83,14 +88,15 @@ class ReferenceFollower:
 
     @property
     def rejoining(self) -> bool:
-        """Whether the target is still on its way back to the reference."""
+        """Whether the target is on its way to the reference (from the first target on)."""
         return self._ramp is not None
 
     def hold(self, position: float | None) -> None:
         """Forget the reference and hold a position [m].
 
-        None (nothing measured yet): the next measured position, from which a reference taken
-        later is rejoined, as at the start.
+        A reference taken later is then followed at once; :meth:`rejoin` ramps to it. None
+        (nothing measured yet): the next measured position, from which a reference is joined
+        at the rejoin speed, as at the start.
         """
         self._target = None if position is None else (-math.inf, position, 0.0)
         self._ramp = None
@@ -127,10 +133,10 @@ class ReferenceFollower:
         gap = x - ramp
         # Caught up with a reference taken since the hold: within a step, or crossed by it
         # since the last call. In walking the reference moves several times faster than the
-        # ramp and passes it by more than a step between two calls; by no more than its own
-        # motion, though (twice that, for references that come in bunches), where a
-        # reference that jumps across the ramp is still ramped to.
-        crossed = gap * side < 0.0 and abs(gap) <= step + 2.0 * abs(v) * elapsed
+        # ramp and passes it by more than a step between two calls; by no more than a moving
+        # reference can, though, where one that jumps across the ramp is still ramped to.
+        crossed = gap * side < 0.0 \
+            and abs(gap) <= step + max(CROSSING_SPEED, 2.0 * abs(v)) * elapsed
         if received > -math.inf and (abs(gap) <= step or crossed):
             self._ramp = None
             return x, v

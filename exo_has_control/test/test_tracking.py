@@ -59,7 +59,8 @@ def test_after_a_rejoin_the_target_ramps_to_a_distant_reference_at_the_rejoin_sp
     assert targets[1][1] == pytest.approx(0.05)  # the ramp's speed as the feedforward
 
 
-def test_a_reference_sweeping_past_the_ramp_is_joined_where_it_crosses():
+@pytest.mark.parametrize('rated', [True, False], ids=['with its rate', 'without rates'])
+def test_a_reference_sweeping_past_the_ramp_is_joined_where_it_crosses(rated):
     f = follower(rejoin_speed=0.05)
     stand = LINKAGE.position_at(1.0)
     f.rejoin(stand)
@@ -72,7 +73,7 @@ def test_a_reference_sweeping_past_the_ramp_is_joined_where_it_crosses():
     for k in range(200):
         t = k * PERIOD
         angle = 0.42 + rate * t
-        take(f, t, angle, rate)
+        take(f, t, angle, rate if rated else 0.0)
         if crossed is None and (LINKAGE.position_at(angle) - ramp) * side < 0.0:
             crossed = t  # the reference is past where the ramp stood a period ago
         x, v = f.target(t, stand)
@@ -83,16 +84,17 @@ def test_a_reference_sweeping_past_the_ramp_is_joined_where_it_crosses():
     assert crossed is not None and not f.rejoining
     assert t == crossed  # joined in the period it crossed, not chased on
     assert (x, v) == (pytest.approx(LINKAGE.position_at(angle)),
-                      pytest.approx(LINKAGE.velocity_at(angle, rate)))
+                      pytest.approx(LINKAGE.velocity_at(angle, rate if rated else 0.0)))
 
 
-def test_a_reference_that_jumps_across_the_ramp_is_still_ramped_to():
+@pytest.mark.parametrize('rate', [0.0, 1.0], ids=['still', 'with a rate of 1 rad/s'])
+def test_a_reference_that_jumps_across_the_ramp_is_still_ramped_to(rate):
     f = follower(rejoin_speed=0.05)
     stand = LINKAGE.position_at(0.5)
     f.rejoin(stand)
-    take(f, 0.0, 0.3)  # on one side of the ramp, still
+    take(f, 0.0, 0.3, rate)  # on one side of the ramp
     f.target(0.0, stand)
-    take(f, PERIOD, 1.2)  # then far on the other, in one message, still again
+    take(f, PERIOD, 1.2, rate)  # then far on the other, in one message
     x, v = f.target(PERIOD, stand)
     assert f.rejoining
     assert abs(x - stand) <= 0.05 * PERIOD * (1 + 1e-9)
@@ -133,6 +135,7 @@ def test_after_a_hold_in_walking_every_joint_rejoins_within_a_stride_from_any_ph
 def test_the_first_reference_is_joined_from_the_first_measured_position_at_the_rejoin_speed(how):
     f = follower(rejoin_speed=0.05)
     if how != 'at the start':
+        take(f, 0.0, 1.0)  # a reference before the stop, forgotten by the rejoin
         f.rejoin(None)
     sunk = LINKAGE.position_at(0.2)  # m: where the joint stands when control starts
     assert f.target(0.0, sunk) == (sunk, 0.0)  # held before any reference

@@ -14,7 +14,9 @@ The rules, per joint (thresholds in :class:`SafetyLimits`):
   only once the position left the end by the margin plus 0.5 mm;
 - tracking error: the reference angle minus the angle of the measured position over the limit,
   for at least the persistence time, while the joint's drive is enabled and no stop is latched
-  (a disabled drive's valve is in free mode, it does not track): TRACKING_ERROR, FATAL;
+  (a disabled drive's valve is in free mode, it does not track), from the start-up grace after
+  the joint's first reference or a reset on (the controller first joins the reference at its
+  rejoin speed): TRACKING_ERROR, FATAL;
 - stale state or command: nothing for longer than its timeout after the joint's first message,
   or nothing at all within the start-up grace: STALE_STATE / STALE_COMMAND, FATAL;
 - a NaN or infinite command: INVALID_COMMAND, FATAL;
@@ -249,8 +251,10 @@ class _Joint:
     reference: float | None = None
     tracking_error: float | None = None
     over_limit_since: float | None = None
-    # Tracking errors are judged from this time on [s]: after a reset, joints rejoin first.
-    tracking_from: float = -math.inf
+    # Tracking errors are judged from this time on [s]: the first reference, or a reset, plus the
+    # start-up grace, since the controller first joins the reference at its rejoin speed
+    # (exo_has_control.tracking: 0.05 m/s, over 30 deg 1.1 s for a hip, 0.4 s for a knee).
+    tracking_from: float = math.inf
     # Publishers found on the joint's topics, by topic: more than one on any is a fault.
     sources: dict[str, tuple[str, ...]] = field(default_factory=dict)
     # Kinds whose condition holds and has been reported (the deduplication).
@@ -395,7 +399,8 @@ class Watchdog:
         """Take joint reference angles [rad] by joint name; other joints are ignored.
 
         A NaN or infinite angle forgets the joint's reference (no tracking check until a
-        finite one); the controller's invalid command, if any, is what is reported.
+        finite one); the controller's invalid command, if any, is what is reported. A joint's
+        first finite reference starts the start-up grace of its tracking check.
 
         Parameters
         ----------
@@ -415,6 +420,8 @@ class Watchdog:
             if state is not None:
                 state.reference = float(angle) if math.isfinite(angle) else None
                 self._reference_time = t
+                if state.reference is not None and state.tracking_from == math.inf:
+                    state.tracking_from = t + state.limits.startup_grace
         return []
 
     def check_reference(self, t: float, source_present: Callable[[], bool]) -> list[Event]:

@@ -188,7 +188,7 @@ def tracking_states(watchdog, joint, start, duration, error):
 
 
 def test_a_tracking_error_over_the_limit_is_fatal_only_when_it_persists():
-    watchdog, t = running()
+    watchdog, t = running(startup_grace=0.0)  # judged from the first reference on
     assert tracking_states(watchdog, 'right_knee', t, 0.15, 0.4) == []  # too short
     assert tracking_states(watchdog, 'right_knee', t + 0.15, 0.05, 0.1) == []  # back in
     event = only(tracking_states(watchdog, 'right_knee', t + 0.2, 0.5, -0.4))
@@ -200,7 +200,7 @@ def test_a_tracking_error_over_the_limit_is_fatal_only_when_it_persists():
 
 
 def test_a_disabled_drive_is_not_held_to_its_reference():
-    watchdog, t = running()
+    watchdog, t = running(startup_grace=0.0)
     watchdog.on_command('left_hip', t, 0.0, False)
     assert tracking_states(watchdog, 'left_hip', t, 0.5, 0.5) == []
     assert not watchdog.stopped
@@ -390,9 +390,9 @@ class SourceCheck:
         return self.present
 
 
-def referenced(until=0.1):
+def referenced(until=0.1, **options):
     """Return a running watchdog that also had a reference every period up to ``until`` [s]."""
-    watchdog, t = running(until)
+    watchdog, t = running(until, **options)
     for at in np.arange(0.0, until, PERIOD):
         assert watchdog.on_reference(at, dict.fromkeys(JOINT_NAMES, 0.3)) == []
     return watchdog, t - PERIOD
@@ -406,7 +406,7 @@ def test_nothing_is_judged_of_a_reference_before_the_first_one():
 
 
 def test_a_lost_reference_latches_one_hold_an_error_not_a_stop():
-    watchdog, last = referenced()
+    watchdog, last = referenced(startup_grace=0.0)  # tracking judged from the start
     source = SourceCheck()
     assert watchdog.check_reference(last + 0.049, source) == []  # within the limit
     assert source.asked == 0  # the graph is asked only once the reference is stale
@@ -449,6 +449,14 @@ def test_a_reference_withdrawn_by_its_publisher_raises_nothing_until_a_new_one_g
     watchdog.on_reference(last + 1.0, dict.fromkeys(JOINT_NAMES, 0.3))
     assert only(watchdog.check_reference(last + 1.1, SourceCheck())).kind \
         == SafetyKind.STALE_REFERENCE
+
+
+def test_at_the_start_tracking_errors_wait_the_startup_grace_after_the_first_reference():
+    watchdog, t = running(startup_grace=1.0)
+    # The joint stands far off its first reference (0.5 rad), as a wearer's may.
+    assert tracking_states(watchdog, 'left_knee', t, 0.95, 0.5) == []  # within the grace
+    event = only(tracking_states(watchdog, 'left_knee', t + 0.95, 0.4, 0.5))
+    assert (event.kind, event.severity) == (SafetyKind.TRACKING_ERROR, Severity.FATAL)
 
 
 def test_after_a_reset_tracking_errors_wait_the_startup_grace_for_the_joints_to_rejoin():
