@@ -133,6 +133,7 @@ class Watchdog(Node):
                                      for limit in self._limits.values())
         self._period = 1.0 / rate
         self._last_check: float | None = None
+        self._reading_system_ns = 0  # system clock [ns] at the last _reading
         self._deferred = False
         self._last_stop_ns = -1
         self._released_ns = -1
@@ -174,6 +175,10 @@ class Watchdog(Node):
     def _reading(self) -> tuple[Time, float, safety.Watchdog] | None:
         """Return the time now, in seconds, and the core; None before the clock runs."""
         now = self.get_clock().now()
+        # The system clock at the same instant, against which receptions are dated: read
+        # later (after a drain that the process was held up in), it would date every message
+        # queued before the hold-up too early by its length, and they would look stale.
+        self._reading_system_ns = time.time_ns()
         if now.nanoseconds == 0:
             return None
         t = now.nanoseconds * 1e-9
@@ -206,10 +211,10 @@ class Watchdog(Node):
         if not taken:
             return
         # DDS stamps receptions on the system clock; the node clock may be simulated, so a
-        # message is dated by its age, not by the stamp itself.
-        system_now_ns = time.time_ns()
+        # message is dated by its age at the reading of t, not by the stamp itself (one that
+        # came after the reading is dated t).
         for message in taken:
-            age = max(0, system_now_ns - message.received_ns) * 1e-9
+            age = max(0, self._reading_system_ns - message.received_ns) * 1e-9
             self._handlers[message.topic](message.data, now, t - age, core)
 
     def _take_state(self, joint: str, state: HasState, now: Time, t: float,

@@ -275,3 +275,30 @@ def test_a_malformed_params_file_ends_the_node_at_start_in_one_line(tmp_path):
         watchdog.wait_for_output(r'\[FATAL\] \[watchdog\]: cannot start: bad ROS arguments: .*'
                                  r"Couldn't parse params file", timeout_s=0.1)
         assert 'Traceback' not in watchdog.output
+
+
+def test_messages_taken_after_a_hold_up_inside_a_check_are_dated_when_they_came(
+        ros_context, monkeypatch):
+    # A check reads the clock, then takes the queued messages. Held up in between (the process
+    # descheduled: a two-host session saw 0.5 s), it dated each message by its age at the end of
+    # the hold-up, from the clock read before it: every one too early by the hold-up, so that
+    # at that check every joint looked stale (a FATAL stop in test_two_hosts.py, 2026-11-26).
+    from exo_has_driver.watchdog import Watchdog
+    from exo_has_runtime.polling import Taken
+
+    node = Watchdog(context=ros_context)
+    try:
+        queued = [Taken(has_state_topic(joint), HasState(
+            joint=joint, position=0.065, pressure_a=5.0e6, pressure_b=1.0e6,
+            valve_mode=HasState.VALVE_ASSIST), time.time_ns()) for joint in JOINT_NAMES]
+
+        def held_up_drain():
+            time.sleep(0.3)
+            return queued
+        monkeypatch.setattr(node._inbox, 'drain', held_up_drain)
+        node._on_tick()
+        t = node._last_check
+        for joint in JOINT_NAMES:
+            assert node._core._joints[joint].state_time == pytest.approx(t, abs=0.05), joint
+    finally:
+        node.destroy_node()
