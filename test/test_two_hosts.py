@@ -7,11 +7,18 @@ The robot side runs the plants, the controller, the watchdog and a recorder of i
 operator's side the gait publisher and the recorder. The tests read both bags afterwards;
 tracking is judged on the robot's, which has every state however the link fares.
 
+The walk strides at 0.4 Hz, not the paper's 0.85 Hz, as in ``test_can_session.py``: at 0.85
+Hz the knee cylinder is asked for 0.305 m/s against the pump's 0.172 (``exo-has design-check
+--joint knee``), its error peaks at 21-22 deg on a clean link, just over the watchdog's
+20-deg limit, and a few late periods hold it there for the limit's 0.2 s: a FATAL stop that
+says nothing of the link (seen here once, with another test run beside this one). The paper's
+walk is tested on one host (``test_session.py``).
+
 What is to hold, and why:
 
-- clean and lossy link: no safety event at all, and tracking within the one-host bounds
-  (``test_session.py``): the reference is sent every 5 ms, and 20 % loss takes a few in a row
-  at most, while the hold waits for ``STALE_S`` without any;
+- clean and lossy link: no safety event at all, and tracking within ``HIP_WALK_PEAK`` and
+  ``KNEE_PEAK``: the reference is sent every 5 ms, and 20 % loss takes a few in a row at most,
+  while the hold waits for ``STALE_S`` without any;
 - partition: a STALE_REFERENCE hold (ERROR, not FATAL) within ``HOLD_BOUND`` of the cut,
   every joint standing still from then until the reset, even once the link is back; no FATAL
   event; the robot's bag keeps every state, the operator's says where it lost them;
@@ -43,7 +50,11 @@ STALE_S = 0.2  # s: the session's stale limit (40 periods at 200 Hz), references
 HOLD_BOUND = STALE_S + 0.25  # s: plus a check period, the event's way and a scheduling hiccup
 RECOVERY_BOUND = 3.0  # s: Fast DDS resends its announcements; a lease (20 s) never expired
 HELD_MOTION = 2.0  # deg: how far a held joint may drift (pressure settling, load)
-HIP_WALK_PEAK, KNEE_PEAK = 10.0, 26.0  # deg, as test_session.py
+STRIDE_FREQUENCY = 0.4  # Hz: see the module docstring
+# Peaks in a session here on 2026-11-26 with a whole suite run beside it: hips 1.5, knees 3.4
+# deg (at 20 % loss). A joint still rejoining 3 s after the reset, as one did before the
+# rejoin's fix (CI, 16 deg on a hip at 0.85 Hz), misses by more.
+HIP_WALK_PEAK, KNEE_PEAK = 4.0, 10.0  # deg
 
 
 @dataclass
@@ -58,8 +69,10 @@ class Run:
 
 @pytest.fixture(scope='module')
 def run(tmp_path_factory, virtual_hosts_available) -> Run:
-    session = Session(SessionConfig(('walk',), (WALK,), RATE, hosts=2),
-                      tmp_path_factory.mktemp('two_hosts'))
+    session = Session(SessionConfig(
+        ('walk',), (WALK,), RATE, hosts=2,
+        node_arguments={'gait_publisher': ('-p', f'stride_frequency:={STRIDE_FREQUENCY}')}),
+        tmp_path_factory.mktemp('two_hosts'))
     marks: dict[str, float] = {}
     session.start(show=lambda line: None)
     try:
