@@ -58,11 +58,9 @@ class ReferenceFollower:
         self.rejoin_speed = rejoin_speed
         self._target: tuple[float, float, float] | None = None  # (t [s], x [m], v [m/s])
         # While rejoining: the time [s] the ramp was last moved (None: not yet), its position
-        # [m] and the reference's offset from it [m] then (0: no reference yet).
-        self._ramp: tuple[float | None, float, float] | None = None
-        # Whether the ramp starts at the next measured position (at the start, or a rejoin
-        # with nothing measured).
-        self._ramp_from_measured = True
+        # [m] (None: the next measured one, at the start) and the reference's offset from it
+        # [m] then (0: no reference yet).
+        self._ramp: tuple[float | None, float | None, float] | None = (None, None, 0.0)
 
     def take(self, t: float, names: Sequence[str], angles: Sequence[float],
              rates: Sequence[float]) -> str | None:
@@ -88,7 +86,7 @@ class ReferenceFollower:
 
     @property
     def rejoining(self) -> bool:
-        """Whether the target is on its way to the reference (from the first target on)."""
+        """Whether the target is on its way to the reference (from the start until it joins)."""
         return self._ramp is not None
 
     def hold(self, position: float | None) -> None:
@@ -99,8 +97,7 @@ class ReferenceFollower:
         at the rejoin speed, as at the start.
         """
         self._target = None if position is None else (-math.inf, position, 0.0)
-        self._ramp = None
-        self._ramp_from_measured = position is None
+        self._ramp = (None, None, 0.0) if position is None else None
 
     def rejoin(self, position: float | None) -> None:
         """Hold a position [m], then move toward the next references at the rejoin speed.
@@ -108,8 +105,7 @@ class ReferenceFollower:
         None (nothing measured yet): from the next measured position, as at the start.
         """
         self.hold(position)
-        if position is not None:
-            self._ramp = (None, position, 0.0)
+        self._ramp = (None, position, 0.0)
 
     def target(self, t: float, measured: float) -> tuple[float, float]:
         """Cylinder position [m] and velocity [m/s] to track at t [s].
@@ -119,15 +115,14 @@ class ReferenceFollower:
         """
         if self._target is None:
             self._target = (-math.inf, measured, 0.0)
-        if self._ramp_from_measured:
-            self._ramp_from_measured = False
-            self._ramp = (None, measured, 0.0)
         received, x, v = self._target
         if t - received > self.timeout:
             v = 0.0
         if self._ramp is None:
             return x, v
         moved, ramp, side = self._ramp
+        if ramp is None:
+            ramp = measured  # the first measured position, where the joint stands
         elapsed = 0.0 if moved is None else max(0.0, t - moved)
         step = self.rejoin_speed * elapsed
         gap = x - ramp

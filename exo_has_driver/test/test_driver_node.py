@@ -315,13 +315,14 @@ def test_a_second_source_of_a_joints_state_stops_every_joint_until_it_is_gone(pe
         peers.node.destroy_publisher(rogue)
         count = len(peers.events)
 
-        sent = [-math.inf]
+        sent = -math.inf
 
         def released():
             # A reset every 0.1 s until the driver sees the source gone, as an operator would
             # press again; not one per message the peers take (30 in 0.1 s in a failed run).
-            if time.monotonic() - sent[0] >= 0.1:
-                sent[0] = time.monotonic()
+            nonlocal sent
+            if time.monotonic() - sent >= 0.1:
+                sent = time.monotonic()
                 peers.reset_publisher.publish(Empty())
             return peers.event(SafetyEvent.KIND_RESET, count)
         assert peers.run(WAIT, lambda: released() is not None), \
