@@ -1,17 +1,19 @@
 """The nonlinear HAS model of Sun et al. (2021), Eqs. 2-8, with the effects it leaves out.
 
-One joint's state is ``[x, v, p_A, n, s, void, n_dot]`` followed by five cumulative volumes used to
-check the mass balance:
+One joint's state is ``[x, v, p_A, n, s, void, n_dot, p_B]`` followed by five cumulative
+volumes used to check the mass balance of the rodless chamber:
 
 - ``x`` cylinder extension from its retracted end [m], ``v`` its velocity [m/s];
-- ``p_A`` rodless-chamber gauge pressure [Pa]; the rod chamber is open to the elastic tank at
-  atmospheric pressure (paper, section 3.3: p_i = 0), so p_B = 0;
+- ``p_A`` rodless-chamber gauge pressure [Pa]; ``p_B`` the rod chamber's [Pa], a state of the
+  circuits that have one (below); in the paper's circuit the rod chamber is open to the elastic
+  tank at atmospheric pressure (section 3.3: p_i = 0), so p_B stays 0;
 - ``n`` motor (= pump) speed [rad/s], following the command through a first-order speed loop
   (the paper's), or a second-order one when ``motor_damping_ratio`` is set, whose rate
   ``n_dot`` [rad/s^2] is then a state too (zero for a first-order loop);
-- ``s`` compact-valve spool position [-]: 1 assist (pump to rodless chamber), 0 free (both
-  chambers to the tank), pushed by the pressure at the valve's inlet: the pump's once the motor
-  turns, the chamber's while in assist (section 2.3.3, :func:`spool_drive`);
+- ``s`` valve spool position [-]. In the paper's circuit the compact valve: 1 assist (pump to
+  rodless chamber), 0 free (both chambers to the tank), pushed by the pressure at the valve's
+  inlet: the pump's once the motor turns, the chamber's while in assist (section 2.3.3,
+  :func:`spool_drive`). In the switched circuit the direction valve: +1 pump to A, -1 pump to B;
 - ``void`` volume of the vapour pocket in the rodless chamber [m^3] (see below).
 
 Flow balance of the rodless chamber, the paper's Eqs. 2, 4 and 6 with the rod side at the tank:
@@ -20,15 +22,34 @@ Flow balance of the rodless chamber, the paper's Eqs. 2, 4 and 6 with the rod si
 :attr:`~exo_has_sim.parameters.HasParameters.flow_area`), not the average ``(A_A + A_B) / 2``
 of the paper's Eq. 10, so the linearisation at mid stroke is Eq. 12 and the steady velocity
 K n is Eq. 14 with A_A in the place of that average (:mod:`exo_has_sim.linear`). Force
-balance, Eq. 8 with the load force and end stops:
-``(M_a + M_L) dv/dt = A_A p - B v - F_friction - F_load + F_stop``.
+balance, Eq. 8 with the rod side, the load force, a known brake and end stops:
+``(M_a + M_L) dv/dt = A_A p_A - A_B p_B - B v - F_friction - F_brake - F_load + F_stop``.
+
+Circuits (:data:`exo_has_sim.parameters.CIRCUITS`; ``p_c`` the charge or tank pressure,
+``G_r`` the return conductance, the rod chamber ``(V_B + A_B (stroke - x)) / E dp_B/dt =
+A_B v + Q_B``):
+
+- ``paper``: as above, ``p_c`` the tank's (0 for the paper's atmospheric tank);
+- ``two_chamber``: the paper's pump and compact valve, the rod chamber returning to the tank
+  through a line, ``Q_B = L_c (p_A - p_B) - G_r (p_B - p_c)`` (the paper's Eq. 5 kept);
+- ``closed``: the pump between the chambers, ``D_p n`` from B to A (its Eqs. 2-7 as written,
+  Q_o = Q_A, Q_i = Q_B), leakage ``(L_n + L_c)(p_A - p_B)`` from A to B, cross-port relief
+  valves, and a flow matching valve joining the lower-pressure chamber to ``p_c`` through
+  ``G_r`` (the differential area's flow goes to or comes from there). The chamber under
+  pressure sets the speed: ``D_p n / A_A`` with A loaded, ``D_p n / A_B`` with B loaded;
+- ``switched``: a one-way pump (``n >= 0`` follows ``|command|``) whose flow the direction
+  valve (``s``, following the command's sign) sends to A (``s = 1``) or B (``s = -1``), the
+  other chamber draining to the accumulator at ``p_c`` through ``G_r``; the pump's leakage
+  and relief valve act across its outlet and ``p_c``. Extending, A is fed (``D_p n / A_A``);
+  retracting, B (``D_p n / A_B``): the flow gain differs by direction by A_A / A_B.
 
 A cavitation floor holds ``p_A`` at the cavitation pressure while the balance would take it
 lower: the missing volume becomes a vapour pocket, which a later net inflow must fill before the
-pressure can rise again. The relief valve passes
+pressure can rise again (``p_B`` is held at the floor without a pocket). The relief valve passes
 ``G_r (p - p_set)`` above its setting; the ``relief_valve`` effect adds an opening from a crack
 pressure below it. All functions are compiled with numba and take the packed parameter vector of
-:func:`pack`.
+:func:`pack`; the analytic Jacobian covers the paper's circuit, a finite-difference one the
+others (the integrator, a W-method, is of second order with either).
 """
 
 from __future__ import annotations
@@ -38,20 +59,28 @@ import math
 import numpy as np
 from numba import njit
 
-from exo_has_sim.parameters import HasParameters
+from exo_has_sim.parameters import CIRCUITS, HasParameters
 from exo_has_sim.valve import ValveMode
 
 # State layout.
-X, V, PA, N, S, VOID, NDOT = 0, 1, 2, 3, 4, 5, 6
-VOL_PUMP, VOL_LEAK, VOL_RELIEF, VOL_FREE, VOL_COMPRESSION = 7, 8, 9, 10, 11
-N_DYNAMIC = 7
-N_STATE = 12
+X, V, PA, N, S, VOID, NDOT, PB = 0, 1, 2, 3, 4, 5, 6, 7
+VOL_PUMP, VOL_LEAK, VOL_RELIEF, VOL_FREE, VOL_COMPRESSION = 8, 9, 10, 11, 12
+N_DYNAMIC = 8
+N_STATE = 13
 
 # Packed parameter layout.
 (I_DP, I_NMAX, I_TAU_M, I_LN, I_LC, I_E, I_AA, I_AB, I_AE, I_STROKE, I_V0, I_M, I_B, I_PREL,
  I_GREL, I_GFREE, I_NENG, I_NREL, I_TAU_S, I_PCAV, I_KSTOP, I_CSTOP, I_FC, I_FS, I_VS, I_VEPS,
- I_NDZ, I_LN2, I_PCRACK, I_GCRACK, I_AIR, I_PHOLD, I_PDROP, I_ZETA) = range(34)
-N_PACKED = 34
+ I_NDZ, I_LN2, I_PCRACK, I_GCRACK, I_AIR, I_PHOLD, I_PDROP, I_ZETA, I_CIRCUIT, I_VB0, I_PCHG,
+ I_GRET, I_JM, I_TMAX, I_ETA, I_SPEED_IN, I_FB, I_VB) = range(44)
+N_PACKED = 44
+
+# Circuits (exo_has_sim.parameters.CIRCUITS) as the ints the compiled code branches on.
+PAPER, TWO_CHAMBER, CLOSED, SWITCHED = (CIRCUITS.index(name) for name in
+                                        ('paper', 'two_chamber', 'closed', 'switched'))
+#: Scale of each dynamic state's finite-difference step (x, v, p_A, n, s, void, n_dot, p_B):
+#: the step is 1.5e-8 of the larger of the state and its scale.
+_DIFFERENCE_SCALE = np.array([1e-3, 1e-3, 1e5, 1.0, 1e-3, 1e-9, 1.0, 1e5])
 
 ATMOSPHERIC_PRESSURE = 101_325.0  # Pa
 CAVITATION_TIME_CONSTANT = 1.0e-4  # s, relaxation of the pressure onto the cavitation floor
@@ -65,8 +94,12 @@ VALVE_FREE, VALVE_ASSIST, VALVE_RELIEF = int(ValveMode.FREE), int(ValveMode.ASSI
     int(ValveMode.RELIEF)
 
 
-def pack(params: HasParameters) -> np.ndarray:
-    """Return the parameter vector the compiled functions take."""
+def pack(params: HasParameters, speed_input: bool = False) -> np.ndarray:
+    """Return the parameter vector the compiled functions take.
+
+    ``speed_input``: the command is the measured motor speed, which drives the pump directly
+    (the motor's own loop, limits and lag are then not modelled).
+    """
     e = params.effects
     packed = np.empty(N_PACKED)
     packed[I_DP] = params.pump_displacement
@@ -103,6 +136,16 @@ def pack(params: HasParameters) -> np.ndarray:
     packed[I_PHOLD] = params.valve_hold_pressure
     packed[I_PDROP] = params.valve_drop_pressure
     packed[I_ZETA] = params.motor_damping_ratio
+    packed[I_CIRCUIT] = CIRCUITS.index(params.circuit)
+    packed[I_VB0] = params.rod_dead_volume
+    packed[I_PCHG] = params.charge_pressure
+    packed[I_GRET] = params.return_conductance
+    packed[I_JM] = params.motor_inertia
+    packed[I_TMAX] = params.motor_torque_peak
+    packed[I_ETA] = params.pump_mechanical_efficiency
+    packed[I_SPEED_IN] = 1.0 if speed_input else 0.0
+    packed[I_FB] = params.brake_force
+    packed[I_VB] = params.brake_velocity
     return packed
 
 
@@ -191,6 +234,87 @@ def spool_target(n: float, p: float, s: float, prm: np.ndarray) -> float:
 
 
 @njit(cache=True)
+def brake_force(v: float, prm: np.ndarray) -> float:
+    """Force of a known brake [N], opposing v (:attr:`HasParameters.brake_force`)."""
+    if prm[I_FB] <= 0.0:
+        return 0.0
+    return float(prm[I_FB] * math.tanh(v / prm[I_VB]))
+
+
+@njit(cache=True)
+def circuit_flows(y: np.ndarray, n_pump: float,
+                  prm: np.ndarray) -> tuple[float, float, float, float, float, float]:
+    """Flows of the circuit at state y and pump speed ``n_pump`` [rad/s] (module docstring).
+
+    Returns
+    -------
+    tuple of float
+        Into the rodless chamber from the pump [m^3/s]; out of it by leakage, by the relief
+        valve, and to the tank or accumulator (the compact valve's free mode, the flow matching
+        or direction valve); the net flow into the rod chamber but for its motion ``A_B v``;
+        and the pressure rise across the pump [Pa], which loads the motor.
+
+    """
+    p, s, p_b = y[PA], y[S], y[PB]
+    circuit = int(prm[I_CIRCUIT])
+    p_c = prm[I_PCHG]
+    d_p = prm[I_DP]
+    if circuit == CLOSED:
+        rise = p - p_b
+        pump = d_p * pump_speed(n_pump, prm)
+        leak = (prm[I_LN] + prm[I_LC]) * rise + prm[I_LN2] * rise * abs(rise)
+        relief = relief_flow(rise, prm) - relief_flow(-rise, prm)
+        # The flow matching valve joins the lower-pressure chamber to the charge line.
+        loaded, _ = _smoothstep(rise / (prm[I_PHOLD] - prm[I_PDROP]) + 0.5)
+        drain_a = (1.0 - loaded) * prm[I_GRET] * (p - p_c)
+        into_b = -pump + leak + relief - loaded * prm[I_GRET] * (p_b - p_c)
+        return pump, leak, relief, drain_a, into_b, rise
+    if circuit == SWITCHED:
+        to_a = min(max(0.5 * (1.0 + s), 0.0), 1.0)  # share of the pump's flow sent to A
+        outlet = to_a * p + (1.0 - to_a) * p_b
+        rise = outlet - p_c
+        pump = d_p * pump_speed(max(n_pump, 0.0), prm)
+        lost = prm[I_LN] * rise + prm[I_LN2] * rise * abs(rise)
+        relieved = relief_flow(rise, prm)
+        cross = prm[I_LC] * (p - p_b)
+        drain_a = (1.0 - to_a) * prm[I_GRET] * (p - p_c)
+        into_b = (1.0 - to_a) * (pump - lost - relieved) - to_a * prm[I_GRET] * (p_b - p_c) \
+            + cross
+        return to_a * pump, to_a * lost + cross, to_a * relieved, drain_a, into_b, rise
+    # The paper's pump and compact valve (with the rod side a chamber of its own or not).
+    rise = p - p_c
+    pump = s * d_p * pump_speed(n_pump, prm)
+    leak = s * (prm[I_LN] * rise + prm[I_LN2] * rise * abs(rise))
+    into_b = 0.0
+    if circuit == TWO_CHAMBER:
+        cross = prm[I_LC] * (p - p_b)
+        into_b = cross - prm[I_GRET] * (p_b - p_c)
+    else:
+        cross = prm[I_LC] * rise
+    relief = relief_flow(rise, prm)
+    free = (1.0 - s) * prm[I_GFREE] * rise
+    return pump, leak + cross, relief, free, into_b, s * rise
+
+
+@njit(cache=True)
+def motor_rate(command: float, n: float, rise: float, prm: np.ndarray) -> float:
+    """Acceleration [rad/s^2] of a first-order speed loop, within the motor's torque limit.
+
+    With a positive ``motor_inertia`` the drive cannot give more than ``motor_torque_peak``:
+    the torque the loop asks, ``J (command - n) / tau`` and the pump's ``D_p rise / eta``, is
+    clipped there. A one-way pump (the switched circuit) stops at zero speed.
+    """
+    rate = float((command - n) / prm[I_TAU_M])
+    inertia = prm[I_JM]
+    if inertia > 0.0:
+        load = prm[I_DP] * rise / prm[I_ETA]
+        rate = min(max(rate, (-prm[I_TMAX] - load) / inertia), (prm[I_TMAX] - load) / inertia)
+    if int(prm[I_CIRCUIT]) == SWITCHED and n <= 0.0 and rate < 0.0:
+        rate = 0.0
+    return rate
+
+
+@njit(cache=True)
 def rhs(y: np.ndarray, n_cmd: float, f_load: float, prm: np.ndarray,
         dy: np.ndarray) -> None:
     """Write dy/dt of one joint's state into ``dy``.
@@ -200,7 +324,9 @@ def rhs(y: np.ndarray, n_cmd: float, f_load: float, prm: np.ndarray,
     y : np.ndarray
         State (length N_STATE).
     n_cmd : float
-        Motor speed command reaching the drive [rad/s] (after any transport delay).
+        Motor speed command reaching the drive [rad/s] (after any transport delay); with
+        ``speed_input`` packed (:func:`pack`), the motor speed itself. In the switched circuit
+        its sign sets the direction valve and its size the one-way motor's speed.
     f_load : float
         External load force on the rod [N], positive pushing the cylinder to retract.
     prm : np.ndarray
@@ -209,14 +335,19 @@ def rhs(y: np.ndarray, n_cmd: float, f_load: float, prm: np.ndarray,
         Output, length N_STATE.
 
     """
-    x, v, p, n, s = y[X], y[V], y[PA], y[N], y[S]
+    x, v, p, n, s, p_b = y[X], y[V], y[PA], y[N], y[S], y[PB]
+    circuit = int(prm[I_CIRCUIT])
     stroke = prm[I_STROKE]
-    volume = prm[I_V0] + prm[I_AA] * min(max(x, 0.0), stroke)
+    held = min(max(x, 0.0), stroke)
+    volume = prm[I_V0] + prm[I_AA] * held
     capacitance = volume / effective_bulk_modulus(p, prm)
-    q_pump = s * prm[I_DP] * pump_speed(n, prm)
-    q_leak = s * (prm[I_LN] * p + prm[I_LN2] * p * abs(p)) + prm[I_LC] * p
-    q_relief = relief_flow(p, prm)
-    q_free = (1.0 - s) * prm[I_GFREE] * p
+    limit = prm[I_NMAX]
+    command = min(max(n_cmd, -limit), limit)
+    if circuit == SWITCHED:
+        command = abs(command)  # a one-way motor; the sign is the valve's
+    speed_input = prm[I_SPEED_IN] > 0.0
+    n_pump = command if speed_input else n
+    q_pump, q_leak, q_relief, q_free, q_b, rise = circuit_flows(y, n_pump, prm)
     q_motion = prm[I_AE] * v
     q_net = q_pump - q_leak - q_relief - q_free - q_motion
     dp = q_net / capacitance
@@ -226,26 +357,46 @@ def rhs(y: np.ndarray, n_cmd: float, f_load: float, prm: np.ndarray,
         # numerical overshoot) and the net flow grows or fills the pocket.
         dp = (prm[I_PCAV] - p) / CAVITATION_TIME_CONSTANT
         dvoid = capacitance * dp - q_net
+    dp_b = 0.0
+    if circuit != PAPER:
+        rod_volume = prm[I_VB0] + prm[I_AB] * (stroke - held)
+        dp_b = (q_b + prm[I_AB] * v) * effective_bulk_modulus(p_b, prm) / rod_volume
+        if p_b <= prm[I_PCAV] and dp_b < 0.0:
+            dp_b = (prm[I_PCAV] - p_b) / CAVITATION_TIME_CONSTANT
     force_stop = 0.0
     if x < 0.0:
         force_stop = max(-prm[I_KSTOP] * x - prm[I_CSTOP] * v, 0.0)
     elif x > stroke:
         force_stop = min(-prm[I_KSTOP] * (x - stroke) - prm[I_CSTOP] * v, 0.0)
-    force = prm[I_AA] * p - prm[I_B] * v - friction_force(v, prm) - f_load + force_stop
-    command = min(max(n_cmd, -prm[I_NMAX]), prm[I_NMAX])
+    force = prm[I_AA] * p - prm[I_AB] * p_b - prm[I_B] * v - friction_force(v, prm) \
+        - brake_force(v, prm) - f_load + force_stop
     dy[X] = v
     dy[V] = force / prm[I_M]
     dy[PA] = dp
     zeta = prm[I_ZETA]
-    if zeta > 0.0:  # second order, the same low-frequency lag: omega = 2 zeta / tau
+    if speed_input:
+        dy[N] = 0.0  # the measured speed drives the pump; the state is not used
+        dy[NDOT] = 0.0
+    elif zeta > 0.0:  # second order, the same low-frequency lag: omega = 2 zeta / tau
         omega = 2.0 * zeta / prm[I_TAU_M]
         dy[N] = y[NDOT]
         dy[NDOT] = omega * (omega * (command - n) - 2.0 * zeta * y[NDOT])
     else:
-        dy[N] = (command - n) / prm[I_TAU_M]
+        dy[N] = motor_rate(command, n, rise, prm)
         dy[NDOT] = -y[NDOT] / prm[I_TAU_M]  # unused; stays at rest
-    dy[S] = (spool_target(n, p, s, prm) - s) / prm[I_TAU_S]
+    if circuit == SWITCHED:
+        # The direction valve follows the command's sign; a command within the release speed
+        # leaves it where it is.
+        target = s
+        if abs(n_cmd) > prm[I_NREL]:
+            target = 1.0 if n_cmd > 0.0 else -1.0
+        dy[S] = (target - s) / prm[I_TAU_S]
+    elif circuit == CLOSED:
+        dy[S] = (1.0 - s) / prm[I_TAU_S]  # no compact valve: the spool stays open
+    else:
+        dy[S] = (spool_target(n_pump, p, s, prm) - s) / prm[I_TAU_S]
     dy[VOID] = dvoid
+    dy[PB] = dp_b
     dy[VOL_PUMP] = q_pump
     dy[VOL_LEAK] = q_leak
     dy[VOL_RELIEF] = q_relief
@@ -255,9 +406,22 @@ def rhs(y: np.ndarray, n_cmd: float, f_load: float, prm: np.ndarray,
 
 @njit(cache=True)
 def valve_mode(y: np.ndarray, prm: np.ndarray) -> int:
-    """Valve mode of a state: relief when the safety valve passes flow, else assist or free."""
-    if relief_flow(y[PA], prm) > 0.0:
+    """Valve mode of a state: relief when a safety valve passes flow, else assist or free.
+
+    Only the paper's circuits have a free mode; the others are in assist unless relieving.
+    """
+    circuit = int(prm[I_CIRCUIT])
+    if circuit == CLOSED:
+        relieving = relief_flow(y[PA] - y[PB], prm) + relief_flow(y[PB] - y[PA], prm) > 0.0
+    elif circuit == SWITCHED:
+        to_a = min(max(0.5 * (1.0 + y[S]), 0.0), 1.0)
+        relieving = relief_flow(to_a * y[PA] + (1.0 - to_a) * y[PB] - prm[I_PCHG], prm) > 0.0
+    else:
+        relieving = relief_flow(y[PA] - prm[I_PCHG], prm) > 0.0
+    if relieving:
         return VALVE_RELIEF
+    if circuit in (CLOSED, SWITCHED):
+        return VALVE_ASSIST
     return VALVE_ASSIST if y[S] >= 0.5 else VALVE_FREE
 
 
@@ -269,14 +433,27 @@ def initial_state(params: HasParameters, position: float, load_force: float = 0.
     leakage; in free mode the pressure is zero (the load is then not held). A load so light that
     this speed is below ``valve_engage_speed`` (about 130 N on the hip) is not at rest: the
     spool drifts towards free mode and the load sinks, as with the real valve, whose motor must
-    turn to keep the pressure that holds it in assist.
+    turn to keep the pressure that holds it in assist. In the circuits with a rod chamber of
+    their own it starts at the charge pressure, and in the closed and switched circuits the
+    motor stands (their valves hold the load).
     """
     y = np.zeros(N_STATE)
     y[X] = position
+    charge = params.charge_pressure
+    circuit = params.circuit
+    if circuit != 'paper':
+        y[PB] = charge
+    if circuit in ('closed', 'switched'):
+        y[PA] = max((load_force + params.area_b * charge) / params.area_a,
+                    params.cavitation_pressure)
+        y[S] = 1.0
+        return y
     if assist:
-        pressure = max(load_force / params.area_a, params.cavitation_pressure)
-        leak = params.pump_leakage * pressure + params.cylinder_leakage * pressure \
-            + params.effects.quadratic_leakage * pressure * abs(pressure)
+        pressure = max((load_force + params.area_b * y[PB]) / params.area_a,
+                       params.cavitation_pressure)
+        rise = pressure - charge
+        leak = params.pump_leakage * rise + params.cylinder_leakage * (pressure - y[PB]) \
+            + params.effects.quadratic_leakage * rise * abs(rise)
         speed = leak / params.pump_displacement
         dz = params.effects.pump_deadzone
         speed += math.copysign(dz, speed) if dz and speed else 0.0
@@ -303,13 +480,61 @@ def _bulk_modulus_slope(p: float, prm: np.ndarray) -> float:
 
 
 @njit(cache=True)
+def implicit_states(prm: np.ndarray) -> int:
+    """Leading states an implicit integrator must solve for: p_B (the last) only if it moves.
+
+    In the paper's circuit the rod side is the tank's and p_B stays constant, so its row of
+    the Jacobian is zero and the implicit solve can leave it out (exactly).
+    """
+    return N_DYNAMIC - 1 if int(prm[I_CIRCUIT]) == PAPER else N_DYNAMIC
+
+
+@njit(cache=True)
+def analytic(prm: np.ndarray) -> bool:
+    """Whether :func:`jacobian` is analytic for these parameters (the paper's HAS).
+
+    So it is for the paper's circuit with its tank at atmospheric pressure, the motor's
+    own speed loop and no torque limit; other parameter sets take finite differences.
+    """
+    return (int(prm[I_CIRCUIT]) == PAPER and prm[I_PCHG] == 0.0 and prm[I_JM] <= 0.0
+            and prm[I_SPEED_IN] <= 0.0)
+
+
+@njit(cache=True)
 def jacobian(y: np.ndarray, n_cmd: float, f_load: float, prm: np.ndarray,
              jac: np.ndarray) -> None:
     """Write d(dy/dt)/d(y[:N_DYNAMIC]) of one joint into ``jac`` (N_STATE x N_DYNAMIC).
 
-    The analytic derivative of :func:`rhs` (one-sided at its kinks), for the implicit
-    integrator; checked against finite differences in the tests.
+    The analytic derivative of :func:`rhs` (one-sided at its kinks) where :func:`analytic`,
+    else forward differences; for the implicit integrator, checked against central
+    differences in the tests.
     """
+    if analytic(prm):
+        _analytic_jacobian(y, prm, jac)
+        return
+    base = np.empty(N_STATE)
+    rhs(y, n_cmd, f_load, prm, base)
+    _difference_jacobian(y, n_cmd, f_load, prm, base, jac)
+
+
+@njit(cache=True)
+def _difference_jacobian(y: np.ndarray, n_cmd: float, f_load: float, prm: np.ndarray,
+                         base: np.ndarray, jac: np.ndarray) -> None:
+    """Forward-difference d(dy/dt)/d(y[:N_DYNAMIC]) around ``base`` = dy/dt at y."""
+    moved = y.copy()
+    out = np.empty(N_STATE)
+    for j in range(N_DYNAMIC):
+        step = 1.5e-8 * max(abs(y[j]), _DIFFERENCE_SCALE[j])
+        moved[j] = y[j] + step
+        rhs(moved, n_cmd, f_load, prm, out)
+        for i in range(N_STATE):
+            jac[i, j] = (out[i] - base[i]) / step
+        moved[j] = y[j]
+
+
+@njit(cache=True)
+def _analytic_jacobian(y: np.ndarray, prm: np.ndarray, jac: np.ndarray) -> None:
+    """Write the analytic Jacobian of the paper's HAS (:func:`analytic`; see :func:`jacobian`)."""
     x, v, p, n, s = y[X], y[V], y[PA], y[N], y[S]
     for i in range(N_STATE):
         for j in range(N_DYNAMIC):
@@ -370,10 +595,14 @@ def jacobian(y: np.ndarray, n_cmd: float, f_load: float, prm: np.ndarray,
         t = math.tanh(v / prm[I_VEPS])
         d_level = peak * (-2.0 * v / prm[I_VS] ** 2)
         d_force_v -= d_level * t + level * (1.0 - t * t) / prm[I_VEPS]
+    if prm[I_FB] > 0.0:
+        t = math.tanh(v / prm[I_VB])
+        d_force_v -= prm[I_FB] * (1.0 - t * t) / prm[I_VB]
     jac[X, V] = 1.0
     jac[V, X] = d_force_x / prm[I_M]
     jac[V, V] = d_force_v / prm[I_M]
     jac[V, PA] = prm[I_AA] / prm[I_M]
+    jac[V, PB] = -prm[I_AB] / prm[I_M]
     zeta = prm[I_ZETA]
     if zeta > 0.0:
         omega = 2.0 * zeta / prm[I_TAU_M]
@@ -397,4 +626,7 @@ def rhs_and_jacobian(y: np.ndarray, n_cmd: float, f_load: float, prm: np.ndarray
                      dy: np.ndarray, jac: np.ndarray) -> None:
     """Evaluate :func:`rhs` and :func:`jacobian` together (the integrator needs both)."""
     rhs(y, n_cmd, f_load, prm, dy)
-    jacobian(y, n_cmd, f_load, prm, jac)
+    if analytic(prm):
+        _analytic_jacobian(y, prm, jac)
+    else:
+        _difference_jacobian(y, n_cmd, f_load, prm, dy, jac)

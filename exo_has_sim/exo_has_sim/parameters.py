@@ -22,8 +22,14 @@ from exo_has_runtime.params_yaml import read_yaml_file
 from exo_has_sim.errors import ParameterError
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / 'config'
-#: Values a parameters file may leave out, and what they then are.
-OPTIONAL_VALUES: dict[str, float] = {'motor_damping_ratio': 0.0}
+#: Hydraulic circuits a parameter set can describe (:attr:`HasParameters.circuit`).
+CIRCUITS = ('paper', 'two_chamber', 'closed', 'switched')
+#: Values a parameters file may leave out, and what they then are: the paper's HAS (its
+#: circuit, no torque limit modelled, no brake). A file of another rig states its own.
+OPTIONAL_VALUES: dict[str, Any] = {
+    'motor_damping_ratio': 0.0, 'circuit': 'paper', 'rod_dead_volume': 8.0e-6,
+    'charge_pressure': 0.0, 'return_conductance': 1.0e-10, 'motor_inertia': 0.0,
+    'brake_force': 0.0, 'brake_velocity': 0.005}
 #: Largest relative standard uncertainty a parameters file may state (500 %).
 MAX_UNCERTAINTY = 5.0
 
@@ -101,8 +107,22 @@ class HasParameters:
 
     The motor's speed loop is first order with ``motor_time_constant`` (the paper's), or, when
     ``motor_damping_ratio`` is positive, second order with that damping ratio and the same
-    low-frequency lag: natural frequency ``2 zeta / motor_time_constant``. A parameters file
-    may leave ``motor_damping_ratio`` out (:data:`OPTIONAL_VALUES`).
+    low-frequency lag: natural frequency ``2 zeta / motor_time_constant``. With a positive
+    ``motor_inertia`` (a first-order loop), the motor's torque is limited to
+    ``motor_torque_peak``: the loop's acceleration then stops where the torque, inertia and
+    the pump's load ``D_p dp / eta`` included, would exceed it (a drive's current limit).
+
+    ``circuit`` says how the pump meets the cylinder (:data:`CIRCUITS`, and
+    :mod:`exo_has_sim.model` for the flows): ``'paper'``, the paper's (the pump between the
+    tank and the rodless chamber, the rod side open to the tank: section 3.3's p_B = 0);
+    ``'two_chamber'``, the same pump with the rod side a chamber of its own, returning to the
+    tank through a line of ``return_conductance`` (the paper's Eq. 5 kept); ``'closed'``, the
+    pump between the two chambers (its Eqs. 2-7 as written), a flow matching valve joining the
+    lower-pressure chamber to the charge pressure; ``'switched'``, a one-way pump whose flow
+    direction valves send to A or B while the other chamber drains to an accumulator at
+    ``charge_pressure``. ``brake_force`` is a load known to resist the motion both ways (a
+    brake or throttled load cylinder on a test rig): ``F_b tanh(v / brake_velocity)``.
+    A parameters file may leave the values of :data:`OPTIONAL_VALUES` out.
     """
 
     joint_type: str
@@ -145,6 +165,13 @@ class HasParameters:
     angle_offset: float
     cylinder_length_min: float
     motor_damping_ratio: float = 0.0
+    circuit: str = 'paper'
+    rod_dead_volume: float = 8.0e-6
+    charge_pressure: float = 0.0
+    return_conductance: float = 1.0e-10
+    motor_inertia: float = 0.0
+    brake_force: float = 0.0
+    brake_velocity: float = 0.005
     effects: Effects = field(default_factory=Effects)
     provenance: Mapping[str, str] = field(default_factory=dict, compare=False)
     uncertainty: Mapping[str, float] = field(default_factory=dict, compare=False)
@@ -198,6 +225,12 @@ _RANGES: dict[str, tuple[float, float, str]] = {
     'motor_speed_max': (10.0, 2000.0, 'rad/s (4000 r/min is 418.9)'),
     'motor_time_constant': (1e-4, 0.5, 's'),
     'motor_damping_ratio': (0.0, 5.0, '- (0: a first-order speed loop)'),
+    'rod_dead_volume': (1e-8, 1e-3, 'm^3'),
+    'charge_pressure': (0.0, 1e7, 'Pa (gauge)'),
+    'return_conductance': (1e-13, 1e-7, 'm^3/(s Pa)'),
+    'motor_inertia': (0.0, 1.0, 'kg m^2 (0: no torque limit modelled)'),
+    'brake_force': (0.0, 1e6, 'N'),
+    'brake_velocity': (1e-5, 1.0, 'm/s'),
     'motor_torque_nominal': (0.01, 100.0, 'N m'),
     'motor_torque_peak': (0.01, 100.0, 'N m'),
     'pump_mechanical_efficiency': (0.1, 1.0, '-'),
@@ -234,6 +267,8 @@ _RANGES: dict[str, tuple[float, float, str]] = {
     'angle_offset': (-2 * math.pi, 2 * math.pi, 'rad'),
     'cylinder_length_min': (0.01, 2.0, 'm'),
 }
+#: Values that are names, not numbers.
+_TEXT_VALUES = ('joint_type', 'circuit')
 _EFFECT_RANGES: dict[str, tuple[float, float, str]] = {
     'coulomb_friction': (0.0, 5e3, 'N'),
     'stribeck_friction': (0.0, 5e3, 'N'),
@@ -278,6 +313,9 @@ def check_parameters(params: HasParameters, where: str = 'parameters') -> None:
         _check_value(where, name, getattr(params.effects, name), _EFFECT_RANGES, 'effects.')
     if params.joint_type not in JOINT_TYPES:
         msg = f'{where}: joint_type {params.joint_type!r} is not one of {JOINT_TYPES}'
+        raise ParameterError(msg)
+    if params.circuit not in CIRCUITS:
+        msg = f'{where}: circuit {params.circuit!r} is not one of {", ".join(CIRCUITS)}'
         raise ParameterError(msg)
     if params.rod_diameter >= params.bore_diameter:
         msg = f'{where}: rod_diameter must be smaller than bore_diameter'
@@ -328,7 +366,7 @@ def parameters_from_mapping(values: Mapping[str, Any], provenance: Mapping[str, 
     for name, value in effect_values.items():
         _check_value(where, name, value, _EFFECT_RANGES, 'effects.')
     effects = Effects(**{k: float(v) for k, v in effect_values.items()})
-    numbers = {name: values[name] for name in names if name != 'joint_type'}
+    numbers = {name: values[name] for name in names if name not in _TEXT_VALUES}
     for name, value in numbers.items():
         _check_value(where, name, value, _RANGES)
     spreads = dict(uncertainty or {})
@@ -341,7 +379,8 @@ def parameters_from_mapping(values: Mapping[str, Any], provenance: Mapping[str, 
             msg = (f'{where}: uncertainty.{name} must be a relative standard uncertainty in '
                    f'(0, {MAX_UNCERTAINTY:g}] (0.3 for +-30 %), got {value!r}')
             raise ParameterError(msg)
-    params = HasParameters(joint_type=str(values['joint_type']), effects=effects,
+    params = HasParameters(joint_type=str(values['joint_type']), circuit=str(values['circuit']),
+                           effects=effects,
                            provenance=dict(provenance),
                            uncertainty={k: float(v) for k, v in spreads.items()},
                            **{k: float(v) for k, v in numbers.items()})

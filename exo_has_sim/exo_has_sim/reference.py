@@ -35,7 +35,7 @@ def _jacobian_function(prm: np.ndarray, command: float, load: float):  # type: i
 
 
 # Absolute tolerance per state: m, m/s, Pa, rad/s, -, m^3, rad/s^2, then volumes in m^3.
-_ATOL = np.array([1e-10, 1e-9, 1e-2, 1e-7, 1e-10, 1e-16, 1e-4, *([1e-16] * 5)])
+_ATOL = np.array([1e-10, 1e-9, 1e-2, 1e-7, 1e-10, 1e-16, 1e-4, 1e-2, *([1e-16] * 5)])
 
 
 def simulate_reference(params: HasParameters, y0: np.ndarray, n_cmd: np.ndarray,

@@ -4,8 +4,8 @@ The pressure dynamics are stiff (the relief and free-mode passages discharge the
 about 0.1 ms, the end stops ring at 100 Hz), so an explicit method would need steps of a few
 microseconds. The integrator is the two-stage, second-order, L-stable Rosenbrock method ROS2
 (Verwer, Spee, Blom, Hundsdorfer 1999): linearly implicit (no Newton iterations), with the
-analytic Jacobian of the five dynamic states (:func:`exo_has_sim.model.jacobian`) and an
-in-place 6x6 LU solve, compiled with numba. The step size is controlled with the method's
+Jacobian of the dynamic states (:func:`exo_has_sim.model.jacobian`) and an
+in-place LU solve, compiled with numba. The step size is controlled with the method's
 embedded first-order solution: a fixed 1 ms step overshot by tens of MPa where the relief
 valve opens within a step, and a fixed step small enough everywhere cost several times more.
 bench/simulator.py measures speed and error against solve_ivp. Held inputs change only at
@@ -69,8 +69,8 @@ DEFAULT_STEP = 2.0e-3
 #: Default relative tolerance of the step-size control (bench/simulator.py: about 0.1 to 0.2 mm
 #: of position error in walking against solve_ivp at rtol 1e-10, where 0.65 mm is allowed).
 DEFAULT_RTOL = 1.0e-2
-# Absolute tolerance of each dynamic state (m, m/s, Pa, rad/s, -, m^3, rad/s^2).
-_ATOL = np.array([1e-6, 1e-4, 1e4, 1e-1, 1e-3, 1e-9, 1e2])
+# Absolute tolerance of each dynamic state (m, m/s, Pa, rad/s, -, m^3, rad/s^2, Pa).
+_ATOL = np.array([1e-6, 1e-4, 1e4, 1e-1, 1e-3, 1e-9, 1e2, 1e4])
 
 
 @njit(cache=True)
@@ -127,21 +127,22 @@ def _ros2_trial(y: np.ndarray, h: float, n_cmd: float, f_load: float, prm: np.nd
     factors (and the Jacobian) of an earlier step of the same length (:func:`_advance`).
     """
     ns = y.shape[0]
-    nd = model.N_DYNAMIC
+    nd = model.implicit_states(prm)
     f0, fp, yp, k1, k2, yn = work[_F0], work[_FP], work[_YP], work[_K1], work[_K2], work[_YN]
     gh = GAMMA * h
+    factors = lu[:nd, :nd]
     if fresh:
         model.rhs_and_jacobian(y, n_cmd, f_load, prm, f0, jac)
         for i in range(nd):
             for k in range(nd):
-                lu[i, k] = -gh * jac[i, k]
-            lu[i, i] += 1.0
-        _lu(lu, pivots)
+                factors[i, k] = -gh * jac[i, k]
+            factors[i, i] += 1.0
+        _lu(factors, pivots)
     else:
         model.rhs(y, n_cmd, f_load, prm, f0)
     for i in range(nd):
         k1[i] = f0[i]
-    _lu_solve(lu, pivots, k1[:nd])
+    _lu_solve(factors, pivots, k1[:nd])
     for i in range(nd, ns):
         acc = f0[i]
         for k in range(nd):
@@ -152,7 +153,7 @@ def _ros2_trial(y: np.ndarray, h: float, n_cmd: float, f_load: float, prm: np.nd
     model.rhs(yp, n_cmd, f_load, prm, fp)
     for i in range(nd):
         k2[i] = fp[i] - 2.0 * k1[i]
-    _lu_solve(lu, pivots, k2[:nd])
+    _lu_solve(factors, pivots, k2[:nd])
     for i in range(nd, ns):
         acc = fp[i] - 2.0 * k1[i]
         for k in range(nd):

@@ -182,14 +182,15 @@ def test_the_analytic_jacobian_is_the_derivative_of_the_model(damping_ratio):
     params = HIP.with_effects(coulomb_friction=60.0, stribeck_friction=30.0, pump_deadzone=8.0,
                               quadratic_leakage=2e-21, relief_crack_pressure=15e6,
                               relief_crack_conductance=2e-12, entrained_air=0.01)
-    prm = model.pack(params.replace(motor_damping_ratio=damping_ratio))
+    prm = model.pack(params.replace(motor_damping_ratio=damping_ratio, brake_force=40.0))
+    assert model.analytic(prm)
     rng = np.random.default_rng(0)
-    steps = (1e-8, 1e-8, 1e-1, 1e-6, 1e-8, 1e-12, 1e-3)
+    steps = (1e-8, 1e-8, 1e-1, 1e-6, 1e-8, 1e-12, 1e-3, 1e-1)
     for _ in range(200):
         y = np.zeros(model.N_STATE)
         y[:model.N_DYNAMIC] = (rng.uniform(-0.001, 0.131), rng.normal(0.0, 0.1),
                                rng.uniform(-0.08e6, 19e6), rng.normal(0.0, 100.0),
-                               rng.uniform(0.0, 1.0), 0.0, rng.normal(0.0, 1e4))
+                               rng.uniform(0.0, 1.0), 0.0, rng.normal(0.0, 1e4), 0.0)
         analytic = np.zeros((model.N_STATE, model.N_DYNAMIC))
         model.jacobian(y, 50.0, LOAD, prm, analytic)
         numeric = np.zeros_like(analytic)
