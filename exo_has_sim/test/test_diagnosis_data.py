@@ -15,7 +15,7 @@ from exo_has_sim.diagnosis.data import (
     write_csv,
 )
 from exo_has_sim.diagnosis.fitting import output_weights
-from exo_has_sim.diagnosis.plants import HasPlant
+from exo_has_sim.diagnosis.has_plant import HasPlant
 from exo_has_sim.errors import DiagnosisError, MeasurementError
 from exo_has_sim.parameters import load_parameters
 

@@ -7,12 +7,14 @@ import pytest
 from numpy.testing import assert_allclose
 
 from exo_has_sim import model
-from exo_has_sim.diagnosis import plants
+from exo_has_sim.diagnosis import has_plant
 from exo_has_sim.diagnosis.compare import Span, make_windows
 from exo_has_sim.diagnosis.data import Limits, check_columns
 from exo_has_sim.diagnosis.diagnose import diagnose
 from exo_has_sim.diagnosis.fitting import evaluate, fit_parameters, output_weights, robust_rms
-from exo_has_sim.diagnosis.plants import HasPlant, MassPlant, Parameter, _mass_windows
+from exo_has_sim.diagnosis.has_plant import HasPlant
+from exo_has_sim.diagnosis.mass_plant import MassPlant, _mass_windows
+from exo_has_sim.diagnosis.plants import Parameter
 from exo_has_sim.errors import DiagnosisError
 from exo_has_sim.parameters import load_parameters
 from exo_has_sim.simulate import simulate_closed_loop
@@ -299,7 +301,7 @@ def test_a_window_load_bends_with_a_squat_s_load_which_a_line_cannot_follow(monk
     values = {'bulk_modulus': 1.2e9, 'pump_leakage': 2e-13, 'damping': 1800.0}
     misfit = []
     for degree in (1, 2):
-        monkeypatch.setattr(plants, 'WINDOW_LOAD_DEGREE', degree)
+        monkeypatch.setattr(has_plant, 'WINDOW_LOAD_DEGREE', degree)
         misfit.append(100.0 - evaluate(plant, [values], span, output_weights(plant))[0].fit(0))
     # Measured: 0.80 % of the motion unexplained with a line, 0.09 % with the bend.
     assert misfit[1] < 0.15 and misfit[1] < misfit[0] / 4.0

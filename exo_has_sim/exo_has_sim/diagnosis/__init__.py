@@ -1,7 +1,9 @@
 """Model-error diagnosis (ROS-free): what the simulation gets wrong on measured data, and why.
 
 - :mod:`~exo_has_sim.diagnosis.data`: reading and checking a CSV log or a bag;
-- :mod:`~exo_has_sim.diagnosis.plants`: the HAS model and a generic mass, over windows;
+- :mod:`~exo_has_sim.diagnosis.plants`: a plant's parameters and the plant over windows;
+- :mod:`~exo_has_sim.diagnosis.has_plant`, :mod:`~exo_has_sim.diagnosis.mass_plant`: the HAS
+  model and a generic mass as plants;
 - :mod:`~exo_has_sim.diagnosis.compare`: windows, the estimation/validation split, fit %;
 - :mod:`~exo_has_sim.diagnosis.fitting`: parameter fits with confidence intervals;
 - :mod:`~exo_has_sim.diagnosis.effects`: the library of physical effects;
@@ -18,7 +20,8 @@ from __future__ import annotations
 from exo_has_sim.diagnosis.data import Measurement, read_bag, read_csv
 from exo_has_sim.diagnosis.diagnose import Diagnosis, diagnose, load_plant
 from exo_has_sim.diagnosis.effects import EFFECTS
-from exo_has_sim.diagnosis.plants import HasPlant, MassPlant
+from exo_has_sim.diagnosis.has_plant import HasPlant
+from exo_has_sim.diagnosis.mass_plant import MassPlant
 
 __all__ = ['EFFECTS', 'Diagnosis', 'HasPlant', 'MassPlant', 'Measurement', 'diagnose',
            'load_plant', 'read_bag', 'read_csv']

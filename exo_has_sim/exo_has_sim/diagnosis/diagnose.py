@@ -54,8 +54,10 @@ from exo_has_sim.diagnosis.fitting import (
     output_weights,
     robust_rms,
 )
+from exo_has_sim.diagnosis.has_plant import HasPlant
 from exo_has_sim.diagnosis.limits import DetectionLimit, detection_limits, refused_at
-from exo_has_sim.diagnosis.plants import HasPlant, MassPlant, Plant, smooth
+from exo_has_sim.diagnosis.mass_plant import MassPlant
+from exo_has_sim.diagnosis.plants import Plant, smooth
 from exo_has_sim.diagnosis.residuals import (
     CorrelationTest,
     Signature,
@@ -287,8 +289,8 @@ def diagnose(plant: Plant, horizon: float = DEFAULT_HORIZON, burn_in: float = DE
     Parameters
     ----------
     plant : Plant
-        :class:`~exo_has_sim.diagnosis.plants.HasPlant` or
-        :class:`~exo_has_sim.diagnosis.plants.MassPlant` with its measurement.
+        :class:`~exo_has_sim.diagnosis.has_plant.HasPlant` or
+        :class:`~exo_has_sim.diagnosis.mass_plant.MassPlant` with its measurement.
     horizon : float
         Scored prediction horizon of each window [s].
     burn_in : float
@@ -463,7 +465,7 @@ def load_plant(source: str | Path, plant: str = 'has', joint: str | None = None,
         A parameters file instead of the joint type's set (HAS).
     constant_load : bool
         The user's word that an unmeasured load does not vary (HAS; see
-        :attr:`~exo_has_sim.diagnosis.plants.HasPlant.unidentifiable`).
+        :attr:`~exo_has_sim.diagnosis.has_plant.HasPlant.unidentifiable`).
 
     Raises
     ------

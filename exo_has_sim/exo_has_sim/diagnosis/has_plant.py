@@ -1,0 +1,490 @@
+"""The project's HAS model (:mod:`exo_has_sim.model`) as a plant the diagnosis fits, over windows.
+
+A window's initial state comes from the data (:mod:`~exo_has_sim.diagnosis.plants`): the
+position and, when measured, the pressure, smoothed, with the velocity (and, without a pressure
+sensor, the pressure from the force balance, Eq. 8). The motor speed and the spool come from
+the commands sent before the window, through the model's own speed loop and valve. Without a
+load-force signal the load is one constant, fitted with the baseline, or, with the pressure
+unmeasured too, a polynomial in time of each window's own (:meth:`HasPlant.predict`).
+
+The model is integrated by the compiled integrator of :mod:`exo_has_sim.simulate` (that of
+``simulate_open_loop``, at tighter tolerances, see :data:`HAS_ATOL`), every (candidate,
+window) pair one of its "joints".
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+from numpy.polynomial import Legendre
+from scipy.linalg import expm
+from scipy.signal import lfilter
+
+from exo_has_sim import model, simulate
+from exo_has_sim.diagnosis.compare import Span
+from exo_has_sim.diagnosis.data import Measurement
+from exo_has_sim.diagnosis.effects import (
+    EFFECTS,
+    RELIEF_CRACK_CONDUCTANCE,
+    has_effect_parameters,
+)
+from exo_has_sim.diagnosis.plants import (
+    Candidate,
+    FloatArray,
+    IntArray,
+    Parameter,
+    Plant,
+    smooth,
+)
+from exo_has_sim.errors import DiagnosisError
+from exo_has_sim.parameters import Effects, HasParameters
+
+GRAVITY = 9.81  # m/s^2
+#: Relative tolerance of the HAS windows' integration.
+HAS_RTOL = 1e-3
+#: Absolute tolerances of (x [m], v [m/s], p_A [Pa], n [rad/s], spool [-], void [m^3], n_dot
+#: [rad/s^2], p_B [Pa]), ten
+#: times tighter than :mod:`exo_has_sim.simulate`'s defaults, which suit a plant node but not a
+#: comparison with data at a sensor's resolution: where the motor speed passes zero, the spool
+#: dips towards free mode and ``(1 - s) G_free p`` drains the chamber at a rate that a spool
+#: error of 1e-3 changes by 60 MPa/s; at the default tolerances the simulated pressure there
+#: was off by up to 0.8 MPa and the position by 0.1 mm (against a tight-tolerance run), at
+#: these 60 kPa and 13 um, the level of the sensors' noise, for 1.6 times the steps.
+HAS_ATOL = np.array([1e-7, 1e-5, 1e3, 1e-3, 1e-5, 1e-10, 10.0, 1e3])
+#: What a candidate may set of :class:`exo_has_sim.parameters.HasParameters`: the HAS
+#: baseline's re-estimated parameters and the damping ratio of its second-order motor loop.
+NUISANCE = ('bulk_modulus', 'pump_leakage', 'damping', 'motor_time_constant',
+            'pump_displacement', 'dead_volume', 'motor_damping_ratio')
+#: Relative standard uncertainty of a nuisance parameter whose parameter set states none
+#: (None: no prior). The motor's speed loop and the dead volume are assumed values in the
+#: project's sets (their provenance says so); the displacement is stated (paper 2.3.1: 0.4
+#: mL/r), the volumetric efficiency that scales it into the flow gain is not. Bulk modulus,
+#: leakage and damping are what the paper (4.2) calls hard to know: the data decide.
+DEFAULT_UNCERTAINTY: dict[str, float | None] = {
+    'bulk_modulus': None, 'pump_leakage': None, 'damping': None,
+    'motor_time_constant': 0.3, 'pump_displacement': 0.15, 'dead_volume': 0.3}
+#: Damping ratios a second-order motor loop is screened at: under- to overdamped.
+SECOND_ORDER_GRID = (0.4, 0.7, 1.0, 1.5)
+#: Motor speed and spool histories kept (one per delay and time constant a fit tried).
+DRIVE_CACHE = 32
+#: Load step [share of the peak thrust] of the simulations that give a window's sensitivity
+#: to an unmeasured load (:meth:`HasPlant.predict`).
+WINDOW_LOAD_STEP = 0.2
+#: Degree of the polynomial in time that an unmeasured load takes across each window: a level,
+#: a slope and a bend. A squat's load swings with the depth at 0.5 Hz, a third of a period
+#: per window, and the bend a line leaves of it is matched by a spurious delay of 11-15 ms
+#: (bench/README.md, "Position only").
+WINDOW_LOAD_DEGREE = 2
+#: Candidate keys of a window load's shape (internal: predict): the degree of the Legendre
+#: polynomial across the window, and its amplitude [N, at the window's end].
+_LOAD_SHAPE_DEGREE = '_window_load_degree'
+_LOAD_SHAPE_SIZE = '_window_load_size'
+#: Most joints (candidate x window pairs) integrated in one call, which bounds the memory of
+#: the state history (a call holds horizon x joints x model.N_STATE floats).
+MAX_JOINTS = 2048
+
+
+def model_air_fraction(fraction: float) -> float:
+    """Convert a free-air volume fraction at atmospheric pressure to the model's parameter.
+
+    :func:`exo_has_sim.model.effective_bulk_modulus` takes the air's share of the mixture at
+    pressure p as ``a (p_atm / p_abs)^(1/1.4)``, exact for little air. A fraction alpha of the
+    volume at atmospheric pressure is ``alpha / (1 - alpha)`` of the oil's volume, and the air's
+    share at pressure p is ``alpha r / (1 - alpha + alpha r)`` with r that power ratio (at most
+    0.18 above 1 MPa), so ``a = alpha / (1 - alpha)`` to first order in ``alpha r``: without it
+    the model's parameter would read 25 % high at alpha = 0.2.
+    """
+    return fraction / (1.0 - fraction)
+
+
+def _delayed_indices(starts: IntArray, horizon: int, lag: int) -> IntArray:
+    return np.asarray(starts[None, :] - lag + np.arange(horizon)[:, None], dtype=np.int64)
+
+
+class HasPlant(Plant):
+    """The project's HAS model (issue 3) with nominal parameters, over windows.
+
+    The baseline re-estimates what section 4.2 of the paper calls hard to know: the bulk
+    modulus E_y, the pump leakage L_n and the damping B; without a load-force signal, also a
+    constant load force. Everything else keeps its value from the parameter set.
+
+    Outputs are the position and, when measured, the rodless pressure and the motor speed.
+    A measured rod-side pressure is an input: its force A_B p_B joins the load.
+    A window's initial motor speed and spool position are not taken from the (noisy) speed
+    signal but computed from the commands sent before it, through the model's own speed loop
+    and valve (first-order lags), so they carry the candidate's transport delay.
+
+    Parameters
+    ----------
+    measurement : Measurement
+        The data (plant ``'has'``).
+    params : HasParameters
+        Nominal parameters (joint type's set or a parameters file), effects off.
+    load_mass : float or None
+        Mass moved by the cylinder [kg] (replaces ``params.load_mass``).
+    constant_load : bool
+        The user's word that an unmeasured load does not vary (a bench test with a fixed
+        mass): it then makes the effects that act through the pressure identifiable from
+        the position alone (:attr:`unidentifiable`).
+
+    """
+
+    kind = 'has'
+
+    def __init__(self, measurement: Measurement, params: HasParameters,
+                 load_mass: float | None = None, constant_load: bool = False) -> None:
+        self.measurement = measurement
+        self.constant_load = constant_load
+        base = params if load_mass is None else replace(params, load_mass=load_mass)
+        self.params = replace(base, effects=Effects())
+        self.outputs = ('position', *(name for name in ('pressure_a', 'motor_speed')
+                                      if measurement.has(name)))
+        period = measurement.period
+        self._x = smooth(measurement.position, period)
+        self._v = smooth(measurement.position, period, 1)
+        self._a = smooth(measurement.position, period, 2)
+        self._p = smooth(measurement.optional['pressure_a'], period) \
+            if measurement.has('pressure_a') else None
+        # The paper's model has the rod chamber at the tank's (atmospheric) pressure; where the
+        # rod-side pressure is measured, its force A_B p_B acts with the load (an elastic tank
+        # kept above atmospheric, the pressure drop of the return line).
+        self._rod_force = smooth(measurement.optional['pressure_b'], period) \
+            * self.params.area_b if measurement.has('pressure_b') else np.zeros(len(self._x))
+        self._load: FloatArray | None = smooth(measurement.optional['load_force'], period) \
+            + self._rod_force if measurement.has('load_force') else None
+        if self._p is not None:
+            guess = float(np.median(self._p * self.params.area_a - self._rod_force))
+        else:
+            guess = self.params.moving_mass * GRAVITY
+        self._load_guess = max(guess, 1.0)
+        self._u = np.ascontiguousarray(measurement.input, dtype=float)
+        self._drive_cache: dict[tuple[int, float, float],
+                                tuple[FloatArray, FloatArray, FloatArray]] = {}
+
+    @property
+    def baseline(self) -> tuple[Parameter, ...]:
+        """E_y, L_n, B, motor lag, flow gain, dead volume (and a constant unmeasured load).
+
+        Each but the load carries a prior from the parameter set: centred on its value, as
+        wide as the set's stated uncertainty (:data:`DEFAULT_UNCERTAINTY` where it states
+        none), so that the baseline takes up what is error of the nominal values and leaves
+        the effects what is physics.
+        """
+        p = self.params
+
+        def prior(name: str) -> float | None:
+            spread = p.uncertainty.get(name, DEFAULT_UNCERTAINTY.get(name))
+            return None if spread is None else math.log1p(spread)
+
+        out = [
+            Parameter('bulk_modulus', 'Pa', p.bulk_modulus, 5e7, 3e9,
+                      'effective bulk modulus E_y of oil, hose and seals',
+                      prior=prior('bulk_modulus')),
+            Parameter('pump_leakage', 'm^3/(s Pa)', p.pump_leakage, 1e-16, 1e-11,
+                      'pump inner leakage coefficient L_n', prior=prior('pump_leakage')),
+            Parameter('damping', 'N s/m', p.damping, 10.0, 1e5, 'viscous damping B',
+                      prior=prior('damping')),
+            Parameter('motor_time_constant', 's', p.motor_time_constant,
+                      p.motor_time_constant / 10.0, p.motor_time_constant * 10.0,
+                      'time constant of the motor speed loop',
+                      prior=prior('motor_time_constant')),
+            Parameter('pump_displacement', 'm^3/rad', p.pump_displacement,
+                      p.pump_displacement / 2.0, p.pump_displacement * 2.0,
+                      'effective pump displacement: the flow gain, volumetric efficiency '
+                      'included', prior=prior('pump_displacement')),
+            Parameter('dead_volume', 'm^3', p.dead_volume, p.dead_volume / 5.0,
+                      p.dead_volume * 5.0, 'oil volume of the rodless side at full retraction',
+                      prior=prior('dead_volume')),
+        ]
+        if p.motor_damping_ratio > 0.0:  # the parameter set's loop is second order already
+            out.append(self._damping_ratio(p.motor_damping_ratio, prior('motor_damping_ratio')))
+        if self._load is None and not self.window_load:
+            out.append(Parameter('load_force', 'N', self._load_guess, 1.0, 2.0 * p.peak_thrust,
+                                 'constant external load force pushing the cylinder in'))
+        return tuple(out)
+
+    @property
+    def window_load(self) -> bool:
+        """Whether each window estimates a load of its own (:meth:`predict`).
+
+        So it does when neither the pressure nor the load is measured and the user has not
+        said that the load is constant: a load that varies unmeasured (a gait's) would
+        otherwise leave its own misfit to the effects that stay identifiable.
+        """
+        return self._p is None and self._load is None and not self.constant_load
+
+    def predict(self, candidates: Sequence[Candidate], span: Span) -> FloatArray:
+        """Predict the outputs at the scored samples, a window's load its own if unmeasured.
+
+        With :attr:`window_load`, each window takes the load, a polynomial in time of degree
+        :data:`WINDOW_LOAD_DEGREE` across the window, that fits its measured position best,
+        as it takes its initial state from the data: the prediction at the load guess is
+        moved along the window's sensitivities to each Legendre term (one more simulation
+        per term, the load raised by :data:`WINDOW_LOAD_STEP` of the peak thrust times the
+        term, the start state with it) by the least-squares step, linear in the load as the
+        leakage and the compression are in the pressure.
+        """
+        predicted = super().predict(candidates, span)
+        if not self.window_load:
+            return predicted
+        step = WINDOW_LOAD_STEP * self.params.peak_thrust
+        terms = WINDOW_LOAD_DEGREE + 1
+        shaped = [{**c, _LOAD_SHAPE_DEGREE: float(degree), _LOAD_SHAPE_SIZE: step}
+                  for degree in range(terms) for c in candidates]
+        pushed = super().predict(shaped, span).reshape(terms, *predicted.shape)
+        changes = np.moveaxis(pushed - predicted[None], 0, -1)  # (..., horizon, output, term)
+        error = self.measured(span)[None, ..., 0] - predicted[..., 0]
+        basis = changes[..., 0, :]  # the position's sensitivities, (..., horizon, term)
+        normal = np.einsum('...ki,...kj->...ij', basis, basis)
+        right = np.einsum('...ki,...k->...i', basis, error)
+        # A window where the load does not move the position (cavitation, a stop) keeps
+        # the guess: the ridge is negligible against any sensitivity that counts.
+        ridge = 1e-12 * np.trace(normal, axis1=-2, axis2=-1)[..., None, None] + 1e-300
+        with np.errstate(invalid='ignore', over='ignore'):
+            gains = np.linalg.solve(normal + ridge * np.eye(terms), right[..., None])[..., 0]
+        gains = np.where(np.isfinite(gains), gains, 0.0)
+        return np.asarray(predicted + np.einsum('...hoi,...i->...ho', changes, gains),
+                          dtype=float)
+
+    @property
+    def alternatives(self) -> dict[str, tuple[Parameter, ...]]:
+        """A second-order motor speed loop, when the parameter set's is first order.
+
+        A drive's velocity loop (a PI controller on the motor's inertia) is at least second
+        order; fitted with a first-order lag, its delayed start looks like a transport delay.
+        """
+        if self.params.motor_damping_ratio > 0.0:
+            return {}
+        return {'second_order_motor': (self._damping_ratio(0.7, None, SECOND_ORDER_GRID),)}
+
+    @staticmethod
+    def _damping_ratio(start: float, prior: float | None,
+                       grid: tuple[float, ...] = ()) -> Parameter:
+        return Parameter('motor_damping_ratio', '-', start, 0.1, 5.0,
+                         'damping ratio of the second-order motor speed loop', prior=prior,
+                         grid=grid)
+
+    @property
+    def effects(self) -> tuple[str, ...]:
+        """Every effect of the library."""
+        return ('coulomb_friction', 'pump_deadzone', 'transport_delay', 'quadratic_leakage',
+                'relief_valve', 'entrained_air')
+
+    @property
+    def unidentifiable(self) -> dict[str, str]:
+        """The effects that act through the pressure, when neither it nor the load is known.
+
+        The position tells only the net flow into the rodless chamber, ``A_A v``; the pump's
+        flow is known from the command, and the rest, leakage and compression, is a function
+        of the pressure ``p``. Without a pressure signal, ``p`` follows from the force balance
+        ``A_A p = M a + B v + F_friction + F_load``, so an unmeasured load that varies can
+        make any pressure history: a friction force is then a different load, and any other
+        flow law of the pressure (a quadratic leakage, a cracked valve, a softer oil) is
+        matched by a different pressure, hence a different load. Only the flow path from the
+        command to the pump (dead zone, delay, speed loop) stays identifiable. A user who
+        knows the load to be constant says so (``constant_load``): one level is then fitted
+        and every effect tried.
+        """
+        if not self.window_load:  # the same records: pressure or load known, or constant
+            return {}
+        why = ('it acts on the motion only through the rodless pressure, and with neither '
+               'pressure_a nor load_force measured a load that varies unmeasured would make '
+               'the same record; record either, or state that the load is constant '
+               '(--constant-load)')
+        return {effect: why for effect in self.effects if EFFECTS[effect].through_pressure}
+
+    def effect_parameters(self, effect: str) -> tuple[Parameter, ...]:
+        """Parameters of a HAS effect (:mod:`exo_has_sim.diagnosis.effects`) or structure."""
+        alternatives = self.alternatives
+        if effect in alternatives:
+            return alternatives[effect]
+        return has_effect_parameters(effect, self.params)
+
+    def candidate_parameters(self, values: Candidate) -> tuple[HasParameters, float]:
+        """Parameter set of a candidate and its transport delay [s]."""
+        p = self.params
+        sizes = {k: float(values[k]) for k in ('coulomb_friction', 'pump_deadzone',
+                                               'quadratic_leakage') if k in values}
+        if 'entrained_air' in values:
+            sizes['entrained_air'] = model_air_fraction(float(values['entrained_air']))
+        if 'relief_crack_pressure' in values:
+            sizes['relief_crack_pressure'] = float(values['relief_crack_pressure'])
+            sizes['relief_crack_conductance'] = float(
+                values.get('relief_crack_conductance', RELIEF_CRACK_CONDUCTANCE))
+        nuisance: dict[str, Any] = {name: float(values.get(name, getattr(p, name)))
+                                    for name in NUISANCE}
+        params = replace(p, **nuisance, effects=Effects(**sizes))
+        return params, float(values.get('transport_delay', 0.0))
+
+    def drive(self, delay: float, time_constant: float | None = None,
+              damping_ratio: float | None = None) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Motor speed [rad/s], its rate [rad/s^2] and spool position [-] at every sample.
+
+        The commands, delayed by ``delay`` (to the nearest sample) and held, through the speed
+        loop of ``time_constant`` [s] and ``damping_ratio`` (defaults: the parameter set's;
+        first order for a ratio of 0, else second order as :mod:`exo_has_sim.model` has it;
+        exact for held inputs); the spool follows the model's valve law
+        (:func:`exo_has_sim.model.spool_target`, driven by the speed and the measured or
+        load-bearing pressure) through its first-order lag, sample by sample.
+        """
+        params = self.params
+        tau = params.motor_time_constant if time_constant is None else time_constant
+        zeta = params.motor_damping_ratio if damping_ratio is None else damping_ratio
+        lag = round(delay / self.measurement.period)
+        key = (lag, tau, zeta)
+        if key not in self._drive_cache:
+            if len(self._drive_cache) >= DRIVE_CACHE:  # a fit's latest points matter
+                self._drive_cache.pop(next(iter(self._drive_cache)))
+            period = self.measurement.period
+            command = np.concatenate((np.full(lag, self._u[0]), self._u[:len(self._u) - lag]))
+            command = np.clip(command, -params.motor_speed_max, params.motor_speed_max)
+            # The speed at sample k + 1 results from the command held over sample k.
+            if zeta > 0.0:
+                response, rate = _second_order(command, period, tau, zeta)
+                rate = np.concatenate(([0.0], rate[:-1]))
+            else:
+                response, rate = _first_order(command, period, tau), np.zeros(len(command))
+            speed = np.concatenate(([command[0]], response[:-1]))
+            if self._p is not None:
+                pressure = self._p
+            else:
+                load = self._load if self._load is not None \
+                    else self._load_guess + self._rod_force
+                pressure = load / params.area_a
+            prm = model.pack(params)
+            gain = 1.0 - math.exp(-period / params.valve_time_constant)
+            spool = np.empty(len(speed))
+            s = 1.0
+            for k in range(len(speed)):
+                spool[k] = s
+                s += gain * (model.spool_target(speed[k], pressure[k], s, prm) - s)
+            self._drive_cache[key] = (speed, rate, spool)
+        return self._drive_cache[key]
+
+    def initial_states(self, params: HasParameters, delay: float, load: FloatArray,
+                       starts: IntArray) -> FloatArray:
+        """Return the initial state of each window, from the smoothed measurement."""
+        y0 = np.zeros((len(starts), model.N_STATE))
+        y0[:, model.X] = self._x[starts]
+        y0[:, model.V] = self._v[starts]
+        if self._p is not None:
+            y0[:, model.PA] = self._p[starts]
+        else:
+            # Eq. 8 solved for the pressure that gives the measured acceleration.
+            v = self._v[starts]
+            force = params.moving_mass * self._a[starts] + params.damping * v + load
+            fc = params.effects.coulomb_friction
+            if fc:
+                force += fc * np.tanh(v / params.effects.friction_smoothing_velocity)
+            y0[:, model.PA] = np.maximum(force / params.area_a, params.cavitation_pressure)
+        speed, rate, spool = self.drive(delay, params.motor_time_constant,
+                                        params.motor_damping_ratio)
+        y0[:, model.N] = speed[starts]
+        y0[:, model.NDOT] = rate[starts]
+        y0[:, model.S] = spool[starts]
+        return y0
+
+    def simulate(self, candidates: Sequence[Candidate], starts: IntArray, horizon: int,
+                 burn_in: int = 0) -> FloatArray:
+        """Predict the outputs over the windows for each candidate.
+
+        The burn-in is simulated like the rest: the stiff hydraulics forget an imperfect
+        initial velocity within it.
+        """
+        starts = np.asarray(starts, dtype=np.int64)
+        if starts.min() < self.first_start or starts.max() + horizon >= self.measurement.samples:
+            raise DiagnosisError('a window reaches outside the record')
+        out = np.empty((len(candidates), len(starts), horizon, len(self.outputs)))
+        chunk = max(1, MAX_JOINTS // len(starts))
+        for first in range(0, len(candidates), chunk):
+            out[first:first + chunk] = self._simulate_chunk(candidates[first:first + chunk],
+                                                            starts, horizon)
+        return out
+
+    def _simulate_chunk(self, candidates: Sequence[Candidate], starts: IntArray,
+                        horizon: int) -> FloatArray:
+        period = self.measurement.period
+        windows = len(starts)
+        packed, delays, commands, loads, states = [], [], [], [], []
+        for values in candidates:
+            params, delay = self.candidate_parameters(values)
+            lag = math.floor(delay / period + 1e-9)
+            # The simulator delays by the fraction of a period; whole periods shift the
+            # commands here, so that a window sees the commands sent before it.
+            packed.append(model.pack(params))
+            delays.append(delay - lag * period)
+            commands.append(self._u[_delayed_indices(starts, horizon, lag)])
+            if self._load is not None:
+                load = self._load[_delayed_indices(starts, horizon, 0)]
+                start_load = self._load[starts]
+            else:
+                level = float(values.get('load_force', self._load_guess))
+                load = level + self._rod_force[_delayed_indices(starts, horizon, 0)]
+                start_load = level + self._rod_force[starts]
+                if _LOAD_SHAPE_DEGREE in values:  # a term of a window's own load (predict)
+                    term = Legendre.basis(int(values[_LOAD_SHAPE_DEGREE]))
+                    shape = values[_LOAD_SHAPE_SIZE] * term(np.linspace(-1.0, 1.0, horizon))
+                    load = load + shape[:, None]
+                    start_load = start_load + shape[0]
+            loads.append(load)
+            states.append(self.initial_states(params, delay, start_load, starts))
+        states_out = _integrate(np.repeat(np.stack(packed), windows, axis=0),
+                                np.repeat(delays, windows), np.concatenate(states),
+                                np.concatenate(commands, axis=1), np.concatenate(loads, axis=1),
+                                period)
+        shape = (len(candidates), windows, horizon)
+        index = {'position': model.X, 'pressure_a': model.PA, 'motor_speed': model.N}
+        out = [np.moveaxis(states_out[1:, :, index[name]], 0, 1).reshape(shape)
+               for name in self.outputs]
+        return np.stack(out, axis=-1)
+
+
+def _integrate(packed: FloatArray, delay: FloatArray, y0: FloatArray, commands: FloatArray,
+               loads: FloatArray, period: float) -> FloatArray:
+    """Integrate N joints open loop at :data:`HAS_ATOL`, :data:`HAS_RTOL`.
+
+    ``packed`` holds each joint's :func:`exo_has_sim.model.pack` row and ``delay`` its
+    transport delay [s] (see :func:`exo_has_sim.simulate.integrate_packed`).
+
+    Raises
+    ------
+    SimulationError
+        If a joint diverged.
+
+    """
+    return simulate.integrate_packed(packed, delay, y0, commands, loads, period,
+                                     rtol=HAS_RTOL, atol=HAS_ATOL)
+
+
+def _second_order(values: FloatArray, period: float, time_constant: float,
+                  damping_ratio: float) -> tuple[FloatArray, FloatArray]:
+    """Response and rate at the samples of the second-order speed loop to a held input.
+
+    ``n'' = w^2 (u - n) - 2 zeta w n'`` with ``w = 2 zeta / time_constant``
+    (:func:`exo_has_sim.model.rhs`), from rest at the first input, discretised exactly for an
+    input held over each period.
+    """
+    omega = 2.0 * damping_ratio / time_constant
+    a = np.array([[0.0, 1.0], [-omega * omega, -2.0 * damping_ratio * omega]])
+    b = np.array([0.0, omega * omega])
+    augmented = np.zeros((3, 3))
+    augmented[:2, :2], augmented[:2, 2] = a * period, b * period
+    transition = expm(augmented)
+    phi, gamma = transition[:2, :2], transition[:2, 2]
+    state = np.array([values[0], 0.0])
+    out = np.empty((len(values), 2))
+    for k, u in enumerate(values):
+        state = phi @ state + gamma * u
+        out[k] = state
+    return out[:, 0], out[:, 1]
+
+
+def _first_order(values: FloatArray, period: float, time_constant: float) -> FloatArray:
+    """Response at the samples of a first-order lag to an input held over each period."""
+    alpha = 1.0 - math.exp(-period / time_constant)
+    out = lfilter([alpha], [1.0, alpha - 1.0], values, zi=[(1.0 - alpha) * values[0]])
+    return np.asarray(out[0], dtype=float)
