@@ -56,6 +56,7 @@ import second_truth_plant as plant_b
 import truth_plant as plant_a
 from common import describe_machine, write_results
 
+from exo_has_sim.diagnosis.cli import STRUCTURE_STATUS
 from exo_has_sim.diagnosis.cli import main as diagnose_main
 
 DURATION = 30.0  # s
@@ -115,10 +116,18 @@ def diagnose_draw(task: Task) -> dict[str, Any]:
     code = diagnose_main([str(path), '--joint', draw.joint_type, '--load-mass', f'{LOAD_MASS}',
                           '--json', str(out), '-q'])
     wall = time.perf_counter() - started
-    doc = json.loads(out.read_text()) if code == 0 else {}
+    doc = json.loads(out.read_text()) if code in (0, STRUCTURE_STATUS) else {}
+    judged = doc.get('structure') or {}
     return {'plant': plant, 'seed': seed, 'joint': draw.joint_type,
             'excitation': draw.excitation, 'effect': effect, 'size': draw.size,
-            'sensors': sensors, 'code': code, 'causes': doc.get('causes', []),
+            'sensors': sensors, 'code': code, 'verdict': doc.get('verdict'),
+            'structure_failed': [{key: f[key] for key in ('check', 'value', 'threshold')}
+                                 for f in judged.get('findings', [])
+                                 if f['gating'] and not f['passed']],
+            'direction_gain': next((f['value'] for f in judged.get('findings', [])
+                                    if f['check'] == 'direction_gain'), None),
+            'fits': doc.get('fits', {}).get('extended', {}),
+            'causes': doc.get('causes', []),
             'sizes': doc.get('sizes', {}), 'indistinguishable': doc.get('indistinguishable', []),
             'structure': doc.get('baseline_structure', []),
             'unidentifiable': sorted(doc.get('unidentifiable', {})),
@@ -134,8 +143,13 @@ def diagnose_draw(task: Task) -> dict[str, Any]:
 
 def run_tasks(tasks: Sequence[Task],
               jobs: int) -> list[dict[str, Any]]:
-    """Diagnose the tasks on ``jobs`` processes, printing a line per result."""
+    """Diagnose the tasks on ``jobs`` processes, printing a line per result.
+
+    Several processes share the cores already: each then integrates on one thread.
+    """
     results = []
+    if jobs > 1:
+        os.environ['EXO_HAS_THREADS'] = '1'
     with multiprocessing.get_context('fork').Pool(jobs) as pool:
         for row in pool.imap_unordered(diagnose_draw, tasks):
             print(json.dumps(row), flush=True)
@@ -151,12 +165,20 @@ def null_ensemble(count: int, sensors: str, jobs: int, first_seed: int = FIRST_N
                  for i in range(count)]
         results = sorted(run_tasks(tasks, jobs), key=lambda r: r['seed'])
     alarms = [r for r in results if r['causes']]
-    failed = [r for r in results if r['code'] != 0]
+    judged = [r for r in results if r['verdict'] == 'structure']
+    failed = [r for r in results if r['code'] not in (0, STRUCTURE_STATUS)]
     lines = [f'bench/detection.py --{name} {count} --sensors {sensors}: {describe_machine()}',
              f'false alarms: {len(alarms)} of {len(results)} effect-free draws '
              f'({100.0 * len(alarms) / len(results):.1f} %); diagnoses that failed: '
              f'{len(failed)}; wall per diagnosis median '
-             f'{float(np.median([r["wall_s"] for r in results])):.1f} s']
+             f'{float(np.median([r["wall_s"] for r in results])):.1f} s',
+             f"structure verdicts (the model's structure does describe these plants): "
+             f'{len(judged)} of {len(results)}',
+             *(f'  seed {r["seed"]} plant {r["plant"]}: '
+               + ', '.join(f'{f["check"]} {f["value"]:.3g}' for f in r['structure_failed'])
+               for r in judged),
+             'flow gain by direction, data over model: '
+             + _spread([r['direction_gain'] for r in results])]
     for plant in PLANTS:
         mine = [r for r in results if r['plant'] == plant]
         lines.append(f'  plant {plant}: {sum(bool(r["causes"]) for r in mine)} of {len(mine)}; '
@@ -228,8 +250,17 @@ def detection_limits(draws: int, sensors: str, jobs: int) -> None:
     write_results(f'detection_limits_{sensors}', {'table': table, 'draws': results}, lines)
 
 
+def _spread(values: Sequence[float | None]) -> str:
+    """Say the median and range of the values that are not None."""
+    found = [v for v in values if v is not None]
+    return (f'median {float(np.median(found)):.3g}, {min(found):.3g} to {max(found):.3g} '
+            f'({len(found)} of {len(values)})' if found else 'none')
+
+
 def _outcome(row: dict[str, Any]) -> str:
     """Say what a diagnosis made of its draw's hidden effect (or of its absence)."""
+    if row['verdict'] == 'structure':
+        return 'structure verdict'
     truth = [] if row['effect'] == 'none' else [row['effect']]
     if row['causes'] == truth:
         return 'right'
@@ -251,7 +282,8 @@ def hidden_draws(sensors: str, jobs: int) -> None:
     results.sort(key=lambda r: r['seed'])
     outcomes: dict[str, list[dict[str, Any]]] = {
         'right': [], 'unidentifiable, nothing named': [], 'missed': [],
-        'another cause, the effect beside it': [], 'another cause': []}
+        'another cause, the effect beside it': [], 'another cause': [],
+        'structure verdict': []}
     for r in results:
         r['outcome'] = _outcome(r)
         outcomes[r['outcome']].append(r)
@@ -267,7 +299,9 @@ def hidden_draws(sensors: str, jobs: int) -> None:
                      f'{r["effect"]} {r["size"]:.3g}: {r["outcome"]}; named '
                      f'{sizes or "none"}{error}'
                      + (f'; beside: {", ".join(r["indistinguishable"])}'
-                        if r['indistinguishable'] else ''))
+                        if r['indistinguishable'] else '')
+                     + ''.join(f'; {f["check"]} {f["value"]:.3g}'
+                               for f in r['structure_failed']))
     write_results(f'detection_hidden_{sensors}', {'draws': results}, lines)
 
 

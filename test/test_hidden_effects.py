@@ -31,7 +31,7 @@ import pytest
 import second_truth_plant as sp
 import truth_plant as tp
 
-from exo_has_sim.diagnosis.cli import main
+from exo_has_sim.diagnosis.cli import STRUCTURE_STATUS, main
 
 #: (plant, draws, first seed): the effects take turns over each plant's draws.
 PLANTS = ((tp, 14, 5000), (sp, 7, 6000))
@@ -42,8 +42,13 @@ FIRST_SEED = PLANTS[0][2]
 def diagnose_csv(path, joint_type, load_mass, out):
     code = main([str(path), '--joint', joint_type, '--load-mass', str(load_mass), '--json',
                  str(out), '-q'])
-    assert code == 0
-    return json.loads(out.read_text())
+    # A verdict that the model's structure does not describe the data names no cause: on
+    # these plants, which the structure does describe, it counts as a miss (and as a false
+    # alarm on a draw without an effect).
+    assert code in (0, STRUCTURE_STATUS)
+    doc = json.loads(out.read_text())
+    assert (code == STRUCTURE_STATUS) == (doc['verdict'] == 'structure')
+    return doc
 
 
 def run_draw(task):
@@ -148,6 +153,7 @@ def test_no_false_alarm_on_the_draws_without_an_effect(results):
     nones = [row for row in results if row['draw'].effect == 'none']
     assert len(nones) == sum(draws // len(tp.EFFECT_CHOICES) for _, draws, _ in PLANTS)
     for row in nones:
+        assert row['doc']['verdict'] == 'none', row['draw'].seed
         assert row['doc']['cause'] == 'none' and row['doc']['causes'] == [], row['draw'].seed
         assert row['doc']['fit_extended'] == row['doc']['fit_baseline']
 

@@ -25,9 +25,10 @@ K n is Eq. 14 with A_A in the place of that average (:mod:`exo_has_sim.linear`).
 balance, Eq. 8 with the rod side, the load force, a known brake and end stops:
 ``(M_a + M_L) dv/dt = A_A p_A - A_B p_B - B v - F_friction - F_brake - F_load + F_stop``.
 
-Circuits (:data:`exo_has_sim.parameters.CIRCUITS`; ``p_c`` the charge or tank pressure,
-``G_r`` the return conductance, the rod chamber ``(V_B + A_B (stroke - x)) / E dp_B/dt =
-A_B v + Q_B``):
+Circuits (:data:`exo_has_sim.parameters.CIRCUITS`; ``p_c`` the charge or tank pressure, an
+accumulator's falling as the cylinder extends and takes up its oil, ``p_c - k_c (x - L / 2)``
+with ``k_c`` the charge stiffness; ``G_r`` the return conductance; the rod chamber
+``(V_B + A_B (stroke - x)) / E dp_B/dt = A_B v + Q_B``):
 
 - ``paper``: as above, ``p_c`` the tank's (0 for the paper's atmospheric tank);
 - ``two_chamber``: the paper's pump and compact valve, the rod chamber returning to the tank
@@ -72,8 +73,8 @@ N_STATE = 13
 (I_DP, I_NMAX, I_TAU_M, I_LN, I_LC, I_E, I_AA, I_AB, I_AE, I_STROKE, I_V0, I_M, I_B, I_PREL,
  I_GREL, I_GFREE, I_NENG, I_NREL, I_TAU_S, I_PCAV, I_KSTOP, I_CSTOP, I_FC, I_FS, I_VS, I_VEPS,
  I_NDZ, I_LN2, I_PCRACK, I_GCRACK, I_AIR, I_PHOLD, I_PDROP, I_ZETA, I_CIRCUIT, I_VB0, I_PCHG,
- I_GRET, I_JM, I_TMAX, I_ETA, I_SPEED_IN, I_FB, I_VB) = range(44)
-N_PACKED = 44
+ I_GRET, I_JM, I_TMAX, I_ETA, I_SPEED_IN, I_FB, I_VB, I_KCHG) = range(45)
+N_PACKED = 45
 
 # Circuits (exo_has_sim.parameters.CIRCUITS) as the ints the compiled code branches on.
 PAPER, TWO_CHAMBER, CLOSED, SWITCHED = (CIRCUITS.index(name) for name in
@@ -146,6 +147,7 @@ def pack(params: HasParameters, speed_input: bool = False) -> np.ndarray:
     packed[I_SPEED_IN] = 1.0 if speed_input else 0.0
     packed[I_FB] = params.brake_force
     packed[I_VB] = params.brake_velocity
+    packed[I_KCHG] = params.charge_stiffness
     return packed
 
 
@@ -242,6 +244,13 @@ def brake_force(v: float, prm: np.ndarray) -> float:
 
 
 @njit(cache=True)
+def charge_pressure(x: float, prm: np.ndarray) -> float:
+    """Pressure [Pa] of the charge line, tank or accumulator at cylinder extension x [m]."""
+    stroke = prm[I_STROKE]
+    return float(prm[I_PCHG] - prm[I_KCHG] * (min(max(x, 0.0), stroke) - 0.5 * stroke))
+
+
+@njit(cache=True)
 def circuit_flows(y: np.ndarray, n_pump: float,
                   prm: np.ndarray) -> tuple[float, float, float, float, float, float]:
     """Flows of the circuit at state y and pump speed ``n_pump`` [rad/s] (module docstring).
@@ -257,7 +266,7 @@ def circuit_flows(y: np.ndarray, n_pump: float,
     """
     p, s, p_b = y[PA], y[S], y[PB]
     circuit = int(prm[I_CIRCUIT])
-    p_c = prm[I_PCHG]
+    p_c = charge_pressure(y[X], prm)
     d_p = prm[I_DP]
     if circuit == CLOSED:
         rise = p - p_b
@@ -415,9 +424,10 @@ def valve_mode(y: np.ndarray, prm: np.ndarray) -> int:
         relieving = relief_flow(y[PA] - y[PB], prm) + relief_flow(y[PB] - y[PA], prm) > 0.0
     elif circuit == SWITCHED:
         to_a = min(max(0.5 * (1.0 + y[S]), 0.0), 1.0)
-        relieving = relief_flow(to_a * y[PA] + (1.0 - to_a) * y[PB] - prm[I_PCHG], prm) > 0.0
+        relieving = relief_flow(to_a * y[PA] + (1.0 - to_a) * y[PB]
+                                - charge_pressure(y[X], prm), prm) > 0.0
     else:
-        relieving = relief_flow(y[PA] - prm[I_PCHG], prm) > 0.0
+        relieving = relief_flow(y[PA] - charge_pressure(y[X], prm), prm) > 0.0
     if relieving:
         return VALVE_RELIEF
     if circuit in (CLOSED, SWITCHED):
@@ -496,8 +506,8 @@ def analytic(prm: np.ndarray) -> bool:
     So it is for the paper's circuit with its tank at atmospheric pressure, the motor's
     own speed loop and no torque limit; other parameter sets take finite differences.
     """
-    return (int(prm[I_CIRCUIT]) == PAPER and prm[I_PCHG] == 0.0 and prm[I_JM] <= 0.0
-            and prm[I_SPEED_IN] <= 0.0)
+    return (int(prm[I_CIRCUIT]) == PAPER and prm[I_PCHG] == 0.0 and prm[I_KCHG] == 0.0
+            and prm[I_JM] <= 0.0 and prm[I_SPEED_IN] <= 0.0)
 
 
 @njit(cache=True)

@@ -28,7 +28,8 @@ CIRCUITS = ('paper', 'two_chamber', 'closed', 'switched')
 #: circuit, no torque limit modelled, no brake). A file of another rig states its own.
 OPTIONAL_VALUES: dict[str, Any] = {
     'motor_damping_ratio': 0.0, 'circuit': 'paper', 'rod_dead_volume': 8.0e-6,
-    'charge_pressure': 0.0, 'return_conductance': 1.0e-10, 'motor_inertia': 0.0,
+    'charge_pressure': 0.0, 'charge_stiffness': 0.0, 'return_conductance': 1.0e-10,
+    'motor_inertia': 0.0,
     'brake_force': 0.0, 'brake_velocity': 0.005}
 #: Largest relative standard uncertainty a parameters file may state (500 %).
 MAX_UNCERTAINTY = 5.0
@@ -120,7 +121,9 @@ class HasParameters:
     pump between the two chambers (its Eqs. 2-7 as written), a flow matching valve joining the
     lower-pressure chamber to the charge pressure; ``'switched'``, a one-way pump whose flow
     direction valves send to A or B while the other chamber drains to an accumulator at
-    ``charge_pressure``. ``brake_force`` is a load known to resist the motion both ways (a
+    ``charge_pressure`` (at mid stroke; an accumulator's falls by ``charge_stiffness`` [Pa/m]
+    as the cylinder extends and takes up the rod's volume of its oil, ``kappa (p + p_atm)
+    (A_A - A_B) / V_gas``). ``brake_force`` is a load known to resist the motion both ways (a
     brake or throttled load cylinder on a test rig): ``F_b tanh(v / brake_velocity)``.
     A parameters file may leave the values of :data:`OPTIONAL_VALUES` out.
     """
@@ -168,6 +171,7 @@ class HasParameters:
     circuit: str = 'paper'
     rod_dead_volume: float = 8.0e-6
     charge_pressure: float = 0.0
+    charge_stiffness: float = 0.0
     return_conductance: float = 1.0e-10
     motor_inertia: float = 0.0
     brake_force: float = 0.0
@@ -227,6 +231,7 @@ _RANGES: dict[str, tuple[float, float, str]] = {
     'motor_damping_ratio': (0.0, 5.0, '- (0: a first-order speed loop)'),
     'rod_dead_volume': (1e-8, 1e-3, 'm^3'),
     'charge_pressure': (0.0, 1e7, 'Pa (gauge)'),
+    'charge_stiffness': (0.0, 1e10, 'Pa/m'),
     'return_conductance': (1e-13, 1e-7, 'm^3/(s Pa)'),
     'motor_inertia': (0.0, 1.0, 'kg m^2 (0: no torque limit modelled)'),
     'brake_force': (0.0, 1e6, 'N'),

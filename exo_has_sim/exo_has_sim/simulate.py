@@ -20,7 +20,9 @@ from __future__ import annotations
 import hashlib
 import itertools
 import math
+import os
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -249,7 +251,7 @@ def _advance_period(y: np.ndarray, commands: np.ndarray, joint: int, k: int, lag
     return taken
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _open_loop(y0: np.ndarray, prm: np.ndarray, n_cmd: np.ndarray, f_load: np.ndarray,
                period: float, delay: np.ndarray, atol: np.ndarray,
                rtol: float, max_step: float, out: np.ndarray) -> int:
@@ -392,6 +394,19 @@ def simulate_open_loop(params: Sequence[HasParameters], y0: np.ndarray, n_cmd: n
     return SimulationResult(time, states, commands)
 
 
+def threads() -> int:
+    """Return how many threads :func:`integrate_packed` spreads its joints over.
+
+    ``EXO_HAS_THREADS`` where set (a pool of processes that each integrate sets it to 1),
+    else one per processor this process may run on.
+    """
+    given = os.environ.get('EXO_HAS_THREADS', '').strip()
+    if given.isdigit() and int(given) > 0:
+        return int(given)
+    return len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') \
+        else os.cpu_count() or 1
+
+
 def integrate_packed(packed: np.ndarray, delay: np.ndarray, y0: np.ndarray,
                      n_cmd: np.ndarray, f_load: np.ndarray, period: float,
                      max_step: float = DEFAULT_STEP, rtol: float = DEFAULT_RTOL,
@@ -399,7 +414,9 @@ def integrate_packed(packed: np.ndarray, delay: np.ndarray, y0: np.ndarray,
     """Integrate N joints open loop from packed parameters; the core of simulate_open_loop.
 
     For callers that build many parameter sets at once (the diagnosis's candidates): no
-    per-joint :class:`HasParameters` and no checks of the inputs' shapes.
+    per-joint :class:`HasParameters` and no checks of the inputs' shapes. The joints are
+    independent, and the compiled loop releases the interpreter's lock, so they are shared
+    among :func:`threads` threads, each integrating a block of them.
 
     Parameters
     ----------
@@ -423,11 +440,27 @@ def integrate_packed(packed: np.ndarray, delay: np.ndarray, y0: np.ndarray,
         If a joint diverged.
 
     """
-    states = np.empty((n_cmd.shape[0] + 1, packed.shape[0], model.N_STATE))
-    _open_loop(np.ascontiguousarray(y0, dtype=float), np.ascontiguousarray(packed),
-               np.ascontiguousarray(n_cmd), np.ascontiguousarray(f_load), period,
-               np.ascontiguousarray(delay, dtype=float), _ATOL if atol is None else atol, rtol,
-               max_step, states)
+    joints = packed.shape[0]
+    y0 = np.ascontiguousarray(y0, dtype=float)
+    packed = np.ascontiguousarray(packed)
+    delay = np.ascontiguousarray(delay, dtype=float)
+    tolerance = _ATOL if atol is None else atol
+
+    def block(first: int, last: int) -> np.ndarray:
+        out = np.empty((n_cmd.shape[0] + 1, last - first, model.N_STATE))
+        _open_loop(y0[first:last], packed[first:last],
+                   np.ascontiguousarray(n_cmd[:, first:last]),
+                   np.ascontiguousarray(f_load[:, first:last]), period, delay[first:last],
+                   tolerance, rtol, max_step, out)
+        return out
+
+    count = min(threads(), max(joints // 8, 1))  # a few joints are not worth a thread
+    if count == 1:
+        states = block(0, joints)
+    else:
+        edges = np.linspace(0, joints, count + 1).round().astype(int)
+        with ThreadPoolExecutor(count) as pool:
+            states = np.concatenate(list(pool.map(block, edges[:-1], edges[1:])), axis=1)
     if not np.all(np.isfinite(states)):
         raise SimulationError('the simulation diverged (NaN or infinite state)')
     return states

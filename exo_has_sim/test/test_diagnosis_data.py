@@ -115,6 +115,16 @@ def test_a_pressure_in_megapascal_is_recognised():
         check_columns(table, 'has', 'log', HIP)
 
 
+def test_a_rod_side_pressure_in_bar_is_recognised_and_one_at_the_tank_in_pascal_is_not():
+    table = columns()
+    rng = np.random.default_rng(2)
+    table['pressure_b'] = 1.5 + 0.3 * rng.standard_normal(len(table['time']))  # bar
+    with pytest.raises(MeasurementError, match='pressure_b looks like MPa or bar'):
+        check_columns(table, 'has', 'log', HIP)
+    table['pressure_b'] = 0.15e6 + 20e3 * rng.standard_normal(len(table['time']))  # Pa
+    assert check_columns(table, 'has', 'log', HIP).has('pressure_b')
+
+
 def test_a_time_in_milliseconds_is_recognised():
     table = columns()
     table['time'] = table['time'] * 1e3

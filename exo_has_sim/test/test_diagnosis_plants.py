@@ -256,7 +256,7 @@ def test_without_pressure_or_load_the_effects_through_the_pressure_are_not_ident
     hip = load_parameters('hip')
     columns = has_closed_loop(hip, seconds=3.0)
     bare = HasPlant(check_columns(position_only(columns), 'has', 'own model'), hip)
-    assert sorted(bare.unidentifiable) == ['coulomb_friction', 'entrained_air',
+    assert sorted(bare.unidentifiable) == ['braking_load', 'coulomb_friction', 'entrained_air',
                                            'quadratic_leakage', 'relief_valve']
     assert 'pressure_a' in bare.unidentifiable['relief_valve']
     # Each window estimates its own load, so no constant load is fitted.

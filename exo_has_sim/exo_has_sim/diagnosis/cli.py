@@ -21,7 +21,14 @@ from exo_has_sim.errors import SimError
 EPILOG = """CSV: a header row, one row per sample, SI units: time [s], motor_speed_command
 [rad/s] (--plant has) or force [N] (--plant mass), position [m]; optionally reference [m],
 pressure_a, pressure_b [Pa], motor_speed [rad/s], load_force [N]. Exit status 0 when the
-diagnosis was made (whatever its verdict), 1 when it could not be."""
+diagnosis was made and the model's structure describes the data (whatever effect it names, or
+none), 3 when the structure does not describe them (the verdict names the evidence and what
+structure would), 1 when no diagnosis could be made."""
+
+
+#: Exit status of a diagnosis whose verdict is that the model's structure does not describe
+#: the data.
+STRUCTURE_STATUS = 3
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -47,6 +54,10 @@ def _parser() -> argparse.ArgumentParser:
                         help='the load is constant (a fixed mass on a bench): lets a record '
                         'without pressure_a or load_force name the effects that act through '
                         'the pressure')
+    parser.add_argument('--motor-speed-input', action='store_true',
+                        help='drive the pump by the measured motor_speed instead of the command '
+                        "through the motor's speed loop: judges the hydraulics apart from a "
+                        'motor at its torque limit')
     parser.add_argument('--max-causes', type=int, default=2, help='most effects to name (2)')
     parser.add_argument('-q', '--quiet', action='store_true',
                         help='no progress lines on stderr')
@@ -62,7 +73,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     try:
         plant = load_plant(args.input, args.plant, args.joint, args.load_mass, args.params,
-                           args.constant_load)
+                           args.constant_load, args.motor_speed_input)
         result = diagnose(plant, args.horizon, args.burn_in, max_causes=args.max_causes,
                           progress=None if args.quiet else progress)
         print(summary(result))
@@ -74,4 +85,4 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (SimError, RuntimeSeamError, OSError) as exc:
         print(f'exo-has diagnose: {exc}', file=sys.stderr)
         return 1
-    return 0
+    return 0 if result.described else STRUCTURE_STATUS

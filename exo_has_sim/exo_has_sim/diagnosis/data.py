@@ -275,9 +275,12 @@ def _check_units(data: Mapping[str, FloatArray], plant: str, source: str,
     for name in ('pressure_a', 'pressure_b'):
         if name in data:
             largest = float(np.max(np.abs(data[name])))
-            if 0.0 < largest < 1000.0 and name == 'pressure_a':
+            # A transducer read in pascal moves by more than 1 kPa in noise alone, even on a
+            # rod side at the tank; a column that never reaches it is in MPa or bar.
+            if 0.0 < largest < 1000.0:
                 msg = (f'{source}: {name} looks like MPa or bar (max {largest:.4g}, under '
-                       '1 kPa); pressures are gauge pascal')
+                       "1 kPa, below any pressure transducer's noise in pascal); pressures "
+                       'are gauge pascal')
                 raise MeasurementError(msg)
             if largest > 1e9:
                 msg = f'{source}: {name} reaches {largest:.4g}, beyond any HAS in pascal'

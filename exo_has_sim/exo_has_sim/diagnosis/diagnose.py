@@ -9,9 +9,16 @@
    baseline fit, so that position, pressure and motor speed count alike whatever their units
    and noise, then the baseline fit (the plant's hard-to-know parameters) with those weights;
 4. the paper's third-order transfer function (:mod:`~exo_has_sim.diagnosis.transfer`);
+   the record's evidence of the circuit and the motor judged
+   (:mod:`~exo_has_sim.diagnosis.structure`): where it contradicts the model's, the verdict
+   says so with its findings, the plant's other structures are fitted to say which would
+   describe the record, and no effect is searched for;
 5. forward selection of effects (:mod:`~exo_has_sim.diagnosis.selection`), in which the
    baseline's alternative structures (a second-order motor loop) compete with the effects
    and, taken first, become the baseline;
+   the model the verdict rests on (extended or baseline) must then describe every output,
+   with no parameter at a bound and no unbounded interval, or the verdict is the structure's
+   too and the effects found are withheld;
 6. residual tests of the baseline and the extended model, and the signatures of the causes in
    the baseline's residuals (:mod:`~exo_has_sim.diagnosis.residuals`);
 7. the detection limit of every effect left out, in this record
@@ -72,6 +79,7 @@ from exo_has_sim.diagnosis.selection import (
     hidden_rivals,
     rivals,
 )
+from exo_has_sim.diagnosis.structure import Judgement, evidence, fit_findings, try_structures
 from exo_has_sim.diagnosis.transfer import ThirdOrderModel, identify_third_order
 from exo_has_sim.errors import DiagnosisError, FitError, MeasurementError
 from exo_has_sim.parameters import load_parameters
@@ -134,6 +142,9 @@ class Diagnosis:
     hidden_rivals : dict[str, list[str]]
         Each named choice with the unidentifiable effects that explain the data as well
         (:func:`~exo_has_sim.diagnosis.selection.hidden_rivals`).
+    judgement : Judgement or None
+        Whether the baseline's structure describes the record, and, where not, the other
+        structures fitted (:mod:`~exo_has_sim.diagnosis.structure`).
 
     """
 
@@ -156,6 +167,22 @@ class Diagnosis:
     limits: dict[str, DetectionLimit] = field(default_factory=dict)
     unidentifiable: dict[str, str] = field(default_factory=dict)
     hidden_rivals: dict[str, list[str]] = field(default_factory=dict)
+    judgement: Judgement | None = None
+
+    @property
+    def described(self) -> bool:
+        """Whether the model's structure describes the record (:attr:`judgement`)."""
+        return self.judgement is None or self.judgement.described
+
+    @property
+    def verdict(self) -> str:
+        """The verdict: ``'structure'``, ``'effect'`` (a cause named) or ``'none'``.
+
+        ``'structure'``: the model's structure does not describe the data (:attr:`judgement`).
+        """
+        if not self.described:
+            return 'structure'
+        return 'effect' if self.causes else 'none'
 
     @property
     def cause(self) -> str:
@@ -224,6 +251,7 @@ class Diagnosis:
         fits = self.fits()
         m = self.plant.measurement
         return {
+            'verdict': self.verdict,
             'cause': self.cause,
             'causes': list(self.causes),
             'sizes': self.sizes(),
@@ -242,7 +270,9 @@ class Diagnosis:
                 'poles': [[float(z.real), float(z.imag)] for z in self.transfer.poles()],
                 'zeros': [[float(z.real), float(z.imag)] for z in self.transfer.zeros()],
                 'velocity_gain': self.transfer.velocity_gain, 'fit': _finite(self.transfer_fit),
-                'method': self.transfer.method},
+                'method': self.transfer.method, 'physical': not self.transfer.unphysical(),
+                'unphysical': self.transfer.unphysical()},
+            'structure': None if self.judgement is None else self.judgement.to_json(),
             'tests': {name: {'passed': test.passed, 'outside': test.outside,
                              'band': test.band} for name, test in self.tests.items()},
             'detection_limits': {effect: limit.to_json()
@@ -345,6 +375,16 @@ def diagnose(plant: Plant, horizon: float = DEFAULT_HORIZON, burn_in: float = DE
     if transfer is not None:
         say(f"paper's third-order transfer function: validated position fit "
             f'{transfer_fit:.2f} %')
+        for why in transfer.unphysical():
+            say(f'  not a physical model of the HAS: {why}')
+    everything = evaluate(plant, [baseline.values], windows.span, weights)[0]
+    judgement = Judgement(tuple(evidence(plant, everything, windows.span)))
+    if not judgement.described:
+        judgement = Judgement((*judgement.findings,
+                               *fit_findings(plant, baseline, baseline_validation)))
+        return _structure_verdict(plant, windows, weights, nominal, baseline,
+                                  baseline_validation, everything, transfer, transfer_fit,
+                                  unidentifiable, judgement, started, progress)
     steps = forward_selection(plant, baseline, baseline_validation, windows, weights, chosen,
                               max_causes, progress)
     named = [step[0] for step in steps if step[0].significant]
@@ -360,6 +400,17 @@ def diagnose(plant: Plant, horizon: float = DEFAULT_HORIZON, burn_in: float = DE
     extended = named[-1].fit if named else baseline
     extended_validation = named[-1].validation if named else baseline_validation
     causes = tuple(score.effect for score in named if score.effect not in alternatives)
+    if named and named[0].effect in alternatives:  # the structure the data called for
+        everything = evaluate(plant, [baseline.values], windows.span, weights)[0]
+    judgement = Judgement((*judgement.findings,
+                           *fit_findings(plant, extended, extended_validation)))
+    if not judgement.described:
+        if causes:
+            say(f'found {", ".join(causes)}, but the model with it does not describe the '
+                'data: withheld')
+        return _structure_verdict(plant, windows, weights, nominal, baseline,
+                                  baseline_validation, everything, transfer, transfer_fit,
+                                  unidentifiable, judgement, started, progress, steps)
     say(f'cause: {", ".join(causes) or "none"}; validated position fit '
         f'{baseline_validation.fit(0):.2f} % -> {extended_validation.fit(0):.2f} %')
     tests = {}
@@ -369,7 +420,6 @@ def diagnose(plant: Plant, horizon: float = DEFAULT_HORIZON, burn_in: float = DE
         position = evaluation.measured[..., 0] - evaluation.predicted[..., 0]
         tests[f'{name}_auto'] = autocorrelation(position)
         tests[f'{name}_cross'] = cross_correlation(position, inputs)
-    everything = evaluate(plant, [baseline.values], windows.span, weights)[0]
     found = _signatures(plant, windows.span, everything)
     say('detection limits of the effects left out')
     limits = detection_limits(plant, extended, extended_validation, validation, weights,
@@ -383,7 +433,36 @@ def diagnose(plant: Plant, horizon: float = DEFAULT_HORIZON, burn_in: float = DE
     return Diagnosis(plant, windows, weights, nominal, baseline, baseline_validation, steps,
                      causes, extended, extended_validation, transfer, transfer_fit, tests,
                      found, time.perf_counter() - started, structure, limits, unidentifiable,
-                     hidden)
+                     hidden, judgement)
+
+
+def _structure_verdict(plant: Plant, windows: Windows, weights: FloatArray,
+                       nominal: Evaluation, baseline: Fit, baseline_validation: Evaluation,
+                       everything: Evaluation, transfer: ThirdOrderModel | None,
+                       transfer_fit: float, unidentifiable: dict[str, str],
+                       judgement: Judgement, started: float, progress: Progress | None,
+                       steps: list[list[Score]] | None = None) -> Diagnosis:
+    """Return the diagnosis whose verdict is that the structure does not describe the data.
+
+    No cause is named (the steps of a selection already run are kept, for the report); the
+    plant's other structures are fitted to say which would describe the record.
+    """
+    say = progress or (lambda _text: None)
+    for finding in judgement.failed:
+        say(f'structure: {finding.text}')
+    if isinstance(plant, HasPlant):
+        say('trying the structures the plant can take instead')
+        judgement = try_structures(plant, judgement, windows, progress)
+    say("the model's structure does not describe these data: no effect is named")
+    m = plant.measurement
+    inputs = m.input[windows.validation_span.scored()]
+    position = baseline_validation.measured[..., 0] - baseline_validation.predicted[..., 0]
+    tests = {'baseline_auto': autocorrelation(position),
+             'baseline_cross': cross_correlation(position, inputs)}
+    return Diagnosis(plant, windows, weights, nominal, baseline, baseline_validation,
+                     steps or [], (), baseline, baseline_validation, transfer, transfer_fit,
+                     tests, _signatures(plant, windows.span, everything),
+                     time.perf_counter() - started, (), {}, unidentifiable, {}, judgement)
 
 
 def _paper_transfer_function(plant: Plant,
@@ -446,7 +525,7 @@ def effect_title(effect: str) -> str:
 
 def load_plant(source: str | Path, plant: str = 'has', joint: str | None = None,
                load_mass: float | None = None, params: str | Path | None = None,
-               constant_load: bool = False) -> Plant:
+               constant_load: bool = False, speed_input: bool = False) -> Plant:
     """Read a CSV log or a bag and build the plant to diagnose it with.
 
     Parameters
@@ -466,6 +545,9 @@ def load_plant(source: str | Path, plant: str = 'has', joint: str | None = None,
     constant_load : bool
         The user's word that an unmeasured load does not vary (HAS; see
         :attr:`~exo_has_sim.diagnosis.has_plant.HasPlant.unidentifiable`).
+    speed_input : bool
+        Drive the HAS's pump by the measured motor speed instead of the command through the
+        motor's loop (:class:`~exo_has_sim.diagnosis.has_plant.HasPlant`).
 
     Raises
     ------
@@ -503,7 +585,10 @@ def load_plant(source: str | Path, plant: str = 'has', joint: str | None = None,
         measurement = read_bag(path, joint, limits)
     else:
         measurement = read_csv(path, 'has', limits)
-    return HasPlant(measurement, parameters, load_mass, constant_load)
+    try:
+        return HasPlant(measurement, parameters, load_mass, constant_load, speed_input)
+    except DiagnosisError as exc:
+        raise MeasurementError(f'{measurement.source}: {exc}') from None
 
 
 def _only_joint(path: Path) -> str | None:

@@ -2,8 +2,13 @@
 
 Each effect is an extension of the plant with parameters of its own; the first parameter is the
 effect's size, which a diagnosis reports. For the HAS the extensions are those of
-:class:`exo_has_sim.parameters.Effects` (the model of issue 3 carries them, off by default); for
-the mass plant, Coulomb friction, a delay of the force and a force dead zone.
+:class:`exo_has_sim.parameters.Effects` (the model of issue 3 carries them, off by default) and
+a braking load (the model's brake, :attr:`exo_has_sim.parameters.HasParameters.brake_force`);
+for the mass plant, Coulomb friction, a delay of the force and a force dead zone. A size's grid
+(what screening tries) and bounds come from the parameter set and, where the record shows it,
+from the record itself (:class:`RecordRange`): a relief valve can only show cracking below the
+pressures the record reaches, and no force can resist the motion beyond what the record's
+pressures push with.
 
 The relief valve. A safety valve that cracks below its setting passes
 ``G_crack (min(p, p_relief) - p_crack)`` once the pressure exceeds the crack pressure. Both the
@@ -17,6 +22,7 @@ cracking).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,6 +33,17 @@ from exo_has_sim.parameters import HasParameters
 
 #: Starting conductance of a cracked safety valve [m^3/(s Pa)] (0.12 L/min per MPa).
 RELIEF_CRACK_CONDUCTANCE = 2.0e-12
+#: Largest seal friction a cylinder can have per metre of sealed circumference (the piston's
+#: and the rod's) [N/m]: a generous bound, several times what common seal sets give at their
+#: working pressure. Seal friction grows with the seals' length, not with the bore's area as
+#: the thrust does: 276 N for the project's 14/8 mm cylinder, 980 N for a 50/28 mm one. The
+#: Coulomb friction's search ends there and a braking load's begins.
+SEAL_FRICTION_PER_METRE = 4000.0
+
+
+def seal_friction_limit(params: HasParameters) -> float:
+    """Return the largest seal friction [N] of the cylinder (:data:`SEAL_FRICTION_PER_METRE`)."""
+    return SEAL_FRICTION_PER_METRE * math.pi * (params.bore_diameter + params.rod_diameter)
 
 
 @dataclass(frozen=True)
@@ -73,11 +90,19 @@ class Effect:
 
 EFFECTS: dict[str, Effect] = {e.id: e for e in (
     Effect('coulomb_friction', 'Coulomb friction',
-           'seal friction F_c tanh(v / 1 mm/s) opposing the motion (HAS); F_c sign(v) with '
-           'stiction (mass plant)',
+           'seal friction F_c tanh(v / 1 mm/s) opposing the motion (HAS), up to what seals '
+           'can give (4 N per mm of sealed circumference); F_c sign(v) with stiction (mass '
+           'plant)',
            'a step in the force (pressure) residual with the sign of the velocity, largest '
            'at direction reversals', 'coulomb_friction', 'N', ('has', 'mass'),
            through_pressure=True),
+    Effect('braking_load', 'braking load',
+           'a load resisting the motion both ways, F_b tanh(v / v_b) (v_b the parameter '
+           "set's brake_velocity): a brake, a throttled load cylinder; beyond what seal "
+           'friction can be (from 4 N per mm of sealed circumference up to the force the '
+           "record's pressures push with), so it is not called friction",
+           'a force step with the sign of the velocity, as friction gives, but larger than any '
+           'seal', 'brake_force', 'N', ('has',), through_pressure=True),
     Effect('pump_deadzone', 'pump dead zone',
            'no flow while |n| < n_dz (the flow matching valve has not switched), '
            'n - n_dz sign(n) beyond it (HAS); a force dead zone on the input (mass plant)',
@@ -108,11 +133,33 @@ def _geometric(low: float, high: float, count: int = 6) -> tuple[float, ...]:
     return tuple(float(v) for v in np.geomspace(low, high, count))
 
 
-def has_effect_parameters(effect: str, params: HasParameters) -> tuple[Parameter, ...]:
+@dataclass(frozen=True)
+class RecordRange:
+    """What a record shows of the HAS's pressures and forces (None: not measured).
+
+    Attributes
+    ----------
+    pressure : float or None
+        The rodless pressure the record reaches [Pa] (its 99th percentile).
+    force : float or None
+        The hydraulic force the record's pressures push with [N] (99th percentile of
+        ``|A_A p_A - A_B p_B|``).
+
+    """
+
+    pressure: float | None = None
+    force: float | None = None
+
+
+def has_effect_parameters(effect: str, params: HasParameters,
+                          record: RecordRange = RecordRange()) -> tuple[Parameter, ...]:
     """Parameters of an effect in the HAS model (the size first), with search bounds.
 
-    The size's grid spans what a fault of a small EHA plausibly is (screening only; the fit
-    searches the wider bounds).
+    The size's grid spans what a fault of a small EHA plausibly is and what the record can
+    show (screening only; the fit searches the wider bounds): a crack pressure from a tenth
+    of the pressure the record reaches to just below it (the setting's 30-90 % without a
+    pressure signal), a friction up to what a seal can give (:func:`seal_friction_limit`)
+    and a braking load from there up to the force the record's pressures push with.
 
     Raises
     ------
@@ -123,10 +170,20 @@ def has_effect_parameters(effect: str, params: HasParameters) -> tuple[Parameter
     relief = params.relief_pressure
     thrust = params.peak_thrust
     top = params.motor_speed_max
+    seal = seal_friction_limit(params)
+    reached = relief if record.pressure is None else min(max(record.pressure, 0.05 * relief),
+                                                          relief)
+    cracks = np.linspace(0.3, 0.9, 7) * relief if record.pressure is None \
+        else np.linspace(0.1, 0.95, 7) * reached
+    pushed = max(thrust if record.force is None else record.force, 2.0 * seal)
     table = {
-        'coulomb_friction': (Parameter('coulomb_friction', 'N', 0.02 * thrust, 0.5, thrust,
-                                       'seal Coulomb friction F_c',
-                                       grid=_geometric(0.005 * thrust, 0.15 * thrust)),),
+        'coulomb_friction': (Parameter('coulomb_friction', 'N', min(0.02 * thrust, 0.5 * seal),
+                                       0.5, seal, 'seal Coulomb friction F_c',
+                                       grid=_geometric(0.005 * thrust,
+                                                       min(0.15 * thrust, seal))),),
+        'braking_load': (Parameter('brake_force', 'N', 2.0 * seal, seal, 2.0 * pushed,
+                                   'force of a load resisting the motion both ways',
+                                   grid=_geometric(seal, pushed, 5)),),
         'pump_deadzone': (Parameter('pump_deadzone', 'rad/s', 0.02 * top, 0.05, 0.25 * top,
                                     'pump dead zone n_dz',
                                     grid=_geometric(0.005 * top, 0.15 * top)),),
@@ -136,11 +193,10 @@ def has_effect_parameters(effect: str, params: HasParameters) -> tuple[Parameter
         'quadratic_leakage': (Parameter('quadratic_leakage', 'm^3/(s Pa^2)', 5e-21, 1e-24,
                                         1e-17, 'quadratic pump leakage L_n2',
                                         grid=_geometric(3e-22, 1e-19, 7)),),
-        'relief_valve': (Parameter('relief_crack_pressure', 'Pa', 0.6 * relief,
-                                   0.05 * relief, 0.995 * relief,
+        'relief_valve': (Parameter('relief_crack_pressure', 'Pa', float(cracks[3]),
+                                   0.02 * relief, 0.995 * relief,
                                    'crack pressure of the safety valve',
-                                   grid=tuple(float(f) * relief for f in
-                                              np.linspace(0.3, 0.9, 7))),
+                                   grid=tuple(float(c) for c in cracks)),
                          Parameter('relief_crack_conductance', 'm^3/(s Pa)',
                                    RELIEF_CRACK_CONDUCTANCE, 1e-14, 1e-9,
                                    'conductance of the cracked safety valve')),

@@ -281,7 +281,8 @@ def fit_parameters(plant: Plant, free: Sequence[Parameter], fixed: Mapping[str, 
     residual = fun(z)[:data_size]
     jacobian = (jacobians[z.tobytes()] if z.tobytes() in jacobians else jac(z))[:data_size]
     shape = (span.count, span.horizon, len(weights))
-    interval = confidence_intervals(free, z, jacobian, residual, shape)
+    interval = confidence_intervals(free, z, jacobian, residual, shape,
+                                    span.horizon * _prior_information(free))
     width = upper - lower
     at_bound = tuple(p.name for p, zi, lo, hi, w in zip(free, z, lower, upper, width,
                                                         strict=True)
@@ -290,13 +291,21 @@ def fit_parameters(plant: Plant, free: Sequence[Parameter], fixed: Mapping[str, 
                bool(result.status > 0), at_bound, residual, jacobian)
 
 
+def _prior_information(free: Sequence[Parameter]) -> FloatArray:
+    """Return each parameter's prior information per residual row, ``1 / prior^2`` (or 0)."""
+    return np.array([0.0 if p.prior is None else 1.0 / p.prior ** 2 for p in free])
+
+
 def confidence_intervals(free: Sequence[Parameter], z: FloatArray, jacobian: FloatArray,
-                         residual: FloatArray,
-                         shape: tuple[int, int, int]) -> dict[str, tuple[float, float]]:
-    """95 % intervals from ``sigma^2 (J^T J)^-1`` inflated for correlated residuals.
+                         residual: FloatArray, shape: tuple[int, int, int],
+                         prior: FloatArray | None = None) -> dict[str, tuple[float, float]]:
+    """95 % intervals from ``sigma^2 (J^T J + P)^-1`` inflated for correlated residuals.
 
     ``residual`` is the flat weighted residual vector of shape (windows, horizon, outputs);
-    a parameter the data do not determine (a singular direction) gets an unbounded interval.
+    ``prior`` the information of each parameter's prior (the diagonal P, in the search
+    coordinate: the rows the fit adds, ``horizon / prior^2``), so that a parameter known from
+    its prior where the data say little keeps the prior's interval; a parameter neither
+    determines (a singular direction) gets an unbounded interval.
     """
     n, p = jacobian.shape
     if n <= p:
@@ -306,6 +315,8 @@ def confidence_intervals(free: Sequence[Parameter], z: FloatArray, jacobian: Flo
     n_eff = min(effective_samples(by_output[..., k]) for k in range(shape[2]))
     inflation = max(1.0, shape[0] * shape[1] / n_eff)
     information = jacobian.T @ jacobian
+    if prior is not None:
+        information = information + np.diag(prior)
     covariance = np.linalg.pinv(information, rcond=1e-12) * sigma2 * inflation
     out = {}
     for i, q in enumerate(free):

@@ -30,6 +30,7 @@ from exo_has_sim.diagnosis.data import Measurement
 from exo_has_sim.diagnosis.effects import (
     EFFECTS,
     RELIEF_CRACK_CONDUCTANCE,
+    RecordRange,
     has_effect_parameters,
 )
 from exo_has_sim.diagnosis.plants import (
@@ -58,7 +59,8 @@ HAS_ATOL = np.array([1e-7, 1e-5, 1e3, 1e-3, 1e-5, 1e-10, 10.0, 1e3])
 #: What a candidate may set of :class:`exo_has_sim.parameters.HasParameters`: the HAS
 #: baseline's re-estimated parameters and the damping ratio of its second-order motor loop.
 NUISANCE = ('bulk_modulus', 'pump_leakage', 'damping', 'motor_time_constant',
-            'pump_displacement', 'dead_volume', 'motor_damping_ratio')
+            'pump_displacement', 'dead_volume', 'motor_damping_ratio', 'charge_pressure',
+            'charge_stiffness', 'return_conductance', 'brake_force')
 #: Relative standard uncertainty of a nuisance parameter whose parameter set states none
 #: (None: no prior). The motor's speed loop and the dead volume are assumed values in the
 #: project's sets (their provenance says so); the displacement is stated (paper 2.3.1: 0.4
@@ -66,7 +68,10 @@ NUISANCE = ('bulk_modulus', 'pump_leakage', 'damping', 'motor_time_constant',
 #: leakage and damping are what the paper (4.2) calls hard to know: the data decide.
 DEFAULT_UNCERTAINTY: dict[str, float | None] = {
     'bulk_modulus': None, 'pump_leakage': None, 'damping': None,
-    'motor_time_constant': 0.3, 'pump_displacement': 0.15, 'dead_volume': 0.3}
+    'motor_time_constant': 0.3, 'pump_displacement': 0.15, 'dead_volume': 0.3,
+    'return_conductance': None, 'brake_force': None, 'charge_stiffness': None}
+#: Unit of the linear search of a charge pressure [Pa] (a charge may be 0 gauge).
+CHARGE_SCALE = 1e5
 #: Damping ratios a second-order motor loop is screened at: under- to overdamped.
 SECOND_ORDER_GRID = (0.4, 0.7, 1.0, 1.5)
 #: Motor speed and spool histories kept (one per delay and time constant a fit tried).
@@ -113,10 +118,18 @@ class HasPlant(Plant):
     constant load force. Everything else keeps its value from the parameter set.
 
     Outputs are the position and, when measured, the rodless pressure and the motor speed.
-    A measured rod-side pressure is an input: its force A_B p_B joins the load.
-    A window's initial motor speed and spool position are not taken from the (noisy) speed
-    signal but computed from the commands sent before it, through the model's own speed loop
-    and valve (first-order lags), so they carry the candidate's transport delay.
+    In the paper's circuit a measured rod-side pressure is an input: its force A_B p_B joins
+    the load. In a circuit with a rod chamber of its own (``params.circuit``) it is an output,
+    the chamber's pressure a state, and the baseline also fits the charge pressure and the
+    return conductance. A window's initial motor speed and spool position are not taken from
+    the (noisy) speed signal but computed from the commands sent before it, through the
+    model's own speed loop and valve (first-order lags), so they carry the candidate's
+    transport delay.
+
+    With ``speed_input`` the measured motor speed drives the pump instead of the command
+    through the motor's loop, so that the hydraulics are judged apart from the motor (a drive
+    that cannot follow its command, a torque limit): the motor's lag, order and delay are then
+    no part of the model, and the motor speed no output.
 
     Parameters
     ----------
@@ -130,40 +143,107 @@ class HasPlant(Plant):
         The user's word that an unmeasured load does not vary (a bench test with a fixed
         mass): it then makes the effects that act through the pressure identifiable from
         the position alone (:attr:`unidentifiable`).
+    speed_input : bool
+        Drive the pump with the measured ``motor_speed`` (which must be in the record).
+
+    Raises
+    ------
+    DiagnosisError
+        For ``speed_input`` without a motor speed in the record.
 
     """
 
     kind = 'has'
 
     def __init__(self, measurement: Measurement, params: HasParameters,
-                 load_mass: float | None = None, constant_load: bool = False) -> None:
+                 load_mass: float | None = None, constant_load: bool = False,
+                 speed_input: bool = False) -> None:
+        if speed_input and not measurement.has('motor_speed'):
+            raise DiagnosisError('driving the pump by the measured motor speed needs a '
+                                 'motor_speed column')
         self.measurement = measurement
         self.constant_load = constant_load
+        self.speed_input = speed_input
         base = params if load_mass is None else replace(params, load_mass=load_mass)
         self.params = replace(base, effects=Effects())
-        self.outputs = ('position', *(name for name in ('pressure_a', 'motor_speed')
-                                      if measurement.has(name)))
+        self.rod_chamber = self.params.circuit != 'paper'
+        measured = ['pressure_a', 'motor_speed']
+        if self.rod_chamber:
+            measured.insert(1, 'pressure_b')
+        if speed_input:
+            measured.remove('motor_speed')
+        self.outputs = ('position', *(name for name in measured if measurement.has(name)))
         period = measurement.period
         self._x = smooth(measurement.position, period)
         self._v = smooth(measurement.position, period, 1)
         self._a = smooth(measurement.position, period, 2)
         self._p = smooth(measurement.optional['pressure_a'], period) \
             if measurement.has('pressure_a') else None
+        self._p_b = smooth(measurement.optional['pressure_b'], period) \
+            if measurement.has('pressure_b') else None
         # The paper's model has the rod chamber at the tank's (atmospheric) pressure; where the
         # rod-side pressure is measured, its force A_B p_B acts with the load (an elastic tank
-        # kept above atmospheric, the pressure drop of the return line).
-        self._rod_force = smooth(measurement.optional['pressure_b'], period) \
-            * self.params.area_b if measurement.has('pressure_b') else np.zeros(len(self._x))
+        # kept above atmospheric, the pressure drop of the return line). A circuit with a rod
+        # chamber of its own has that pressure as a state.
+        self._rod_force = self._p_b * self.params.area_b \
+            if self._p_b is not None and not self.rod_chamber else np.zeros(len(self._x))
         self._load: FloatArray | None = smooth(measurement.optional['load_force'], period) \
             + self._rod_force if measurement.has('load_force') else None
         if self._p is not None:
-            guess = float(np.median(self._p * self.params.area_a - self._rod_force))
+            rod = self._rod_force if not self.rod_chamber else self.params.area_b * (
+                self._p_b if self._p_b is not None else self.params.charge_pressure)
+            guess = float(np.median(self._p * self.params.area_a - rod))
         else:
             guess = self.params.moving_mass * GRAVITY
-        self._load_guess = max(guess, 1.0)
+        self._load_guess = float(np.clip(guess, -0.9 * self.params.peak_thrust,
+                                         1.9 * self.params.peak_thrust))
+        self.record = RecordRange(
+            None if self._p is None else float(np.percentile(self._p, 99)),
+            None if self._p is None else float(np.percentile(np.abs(
+                self.params.area_a * self._p - self.params.area_b * (
+                    self._p_b if self._p_b is not None else 0.0)), 99)))
         self._u = np.ascontiguousarray(measurement.input, dtype=float)
+        if speed_input:
+            self._u = np.ascontiguousarray(measurement.optional['motor_speed'], dtype=float)
+            if self.params.circuit == 'switched' and np.min(self._u) >= 0.0 \
+                    and np.min(measurement.input) < 0.0:
+                # A one-way motor's speed logged without the direction: the command's sign
+                # is the direction valve's side.
+                self._u = np.ascontiguousarray(self._u * np.where(measurement.input < 0.0,
+                                                                  -1.0, 1.0))
+        # The switched circuit's motor turns one way; a logged speed signed by the direction
+        # valve's side (as the command is) is compared signed, an unsigned one as it is.
+        self._signed_speed = self.params.circuit == 'switched' \
+            and measurement.has('motor_speed') \
+            and float(np.min(measurement.optional['motor_speed'])) < 0.0
         self._drive_cache: dict[tuple[int, float, float],
                                 tuple[FloatArray, FloatArray, FloatArray]] = {}
+
+    def restructured(self, circuit: str, speed_input: bool,
+                     brake_force: float = 0.0) -> HasPlant:
+        """Return the plant of the same record with another circuit, pump input or brake.
+
+        Going from the paper's circuit to one with a rod chamber of its own, the charge
+        pressure starts where the record's lower chamber sits (the median of the lower of the
+        two measured pressures, or the rodless one's 5th percentile), the file's value being
+        the paper's atmospheric tank. A positive ``brake_force`` [N] gives it a brake of that
+        size to start from (fitted in the baseline); 0 keeps the parameter set's.
+        """
+        params = replace(self.params, circuit=circuit)
+        if brake_force > 0.0:
+            params = replace(params, brake_force=brake_force)
+        if circuit != 'paper' and not self.rod_chamber and self._p is not None:
+            if self._p_b is not None:
+                # The lower chamber drains to the charge: its pressure against the extension
+                # gives the charge pressure at mid stroke and how an accumulator's falls.
+                low = np.minimum(self._p, self._p_b)
+                slope, level = np.polyfit(self._x - 0.5 * params.stroke, low, 1)
+                params = replace(params, charge_pressure=max(float(level), 0.0),
+                                 charge_stiffness=max(-float(slope), 0.0))
+            else:
+                params = replace(params, charge_pressure=max(
+                    float(np.percentile(self._p, 5)), 0.0))
+        return HasPlant(self.measurement, params, None, self.constant_load, speed_input)
 
     @property
     def baseline(self) -> tuple[Parameter, ...]:
@@ -202,9 +282,35 @@ class HasPlant(Plant):
         ]
         if p.motor_damping_ratio > 0.0:  # the parameter set's loop is second order already
             out.append(self._damping_ratio(p.motor_damping_ratio, prior('motor_damping_ratio')))
+        if self.speed_input:  # the measured speed drives the pump: no motor loop to fit
+            out = [q for q in out if q.name not in ('motor_time_constant',
+                                                    'motor_damping_ratio')]
+        if self.rod_chamber:
+            spread = p.uncertainty.get('charge_pressure')
+            out += [
+                Parameter('charge_pressure', 'Pa', p.charge_pressure, -0.05e6,
+                          max(10.0 * p.charge_pressure, 2e6), 'pressure of the charge line, '
+                          'accumulator or tank the low-pressure chamber returns to',
+                          scale=CHARGE_SCALE, prior=None if spread is None else
+                          spread * max(p.charge_pressure, CHARGE_SCALE) / CHARGE_SCALE),
+                Parameter('return_conductance', 'm^3/(s Pa)', p.return_conductance,
+                          p.return_conductance / 100.0, p.return_conductance * 100.0,
+                          "conductance of the low-pressure chamber's return path",
+                          prior=prior('return_conductance'))]
+            if p.charge_stiffness > 0.0:
+                out.append(Parameter('charge_stiffness', 'Pa/m', p.charge_stiffness,
+                                     p.charge_stiffness / 10.0, p.charge_stiffness * 10.0,
+                                     "fall of the accumulator's pressure per metre of "
+                                     'extension', prior=prior('charge_stiffness')))
+        if p.brake_force > 0.0:
+            out.append(Parameter('brake_force', 'N', p.brake_force, p.brake_force / 20.0,
+                                 p.brake_force * 20.0, 'force of the known brake',
+                                 prior=prior('brake_force')))
         if self._load is None and not self.window_load:
-            out.append(Parameter('load_force', 'N', self._load_guess, 1.0, 2.0 * p.peak_thrust,
-                                 'constant external load force pushing the cylinder in'))
+            # Linear: a rig's load may be nil or pull (a horizontal cylinder, a spring).
+            out.append(Parameter('load_force', 'N', self._load_guess, -p.peak_thrust,
+                                 2.0 * p.peak_thrust, 'constant external load force pushing '
+                                 'the cylinder in', scale=0.05 * p.peak_thrust))
         return tuple(out)
 
     @property
@@ -227,6 +333,13 @@ class HasPlant(Plant):
         per term, the load raised by :data:`WINDOW_LOAD_STEP` of the peak thrust times the
         term, the start state with it) by the least-squares step, linear in the load as the
         leakage and the compression are in the pressure.
+
+        The load so found is held to what the cylinder can carry: between what the rodless
+        chamber holds at its cavitation pressure and at the relief setting
+        (:meth:`load_bounds`). A window whose best load leaves that range takes the constant
+        load within it that fits best instead: unbounded, the loads made any record fit, even
+        a rig's whose circuit the model does not have (-250 to +950 kN against +-7 kN
+        measured, and the nominal model at 99.7 %).
         """
         predicted = super().predict(candidates, span)
         if not self.window_load:
@@ -247,8 +360,34 @@ class HasPlant(Plant):
         with np.errstate(invalid='ignore', over='ignore'):
             gains = np.linalg.solve(normal + ridge * np.eye(terms), right[..., None])[..., 0]
         gains = np.where(np.isfinite(gains), gains, 0.0)
+        # The load across each window at a few instants, and the constant fit where it leaves
+        # what the cylinder can carry.
+        low, high = self.load_bounds()
+        shapes = np.stack([Legendre.basis(d)(np.linspace(-1.0, 1.0, 9)) for d in range(terms)])
+        path = self._load_guess + step * gains @ shapes
+        outside = (path.min(axis=-1) < low) | (path.max(axis=-1) > high)
+        if np.any(outside):
+            level = right[..., 0] / (normal[..., 0, 0] + ridge[..., 0, 0])
+            level = np.clip(level, (low - self._load_guess) / step,
+                            (high - self._load_guess) / step)
+            constant = np.zeros_like(gains)
+            constant[..., 0] = level
+            gains = np.where(outside[..., None], constant, gains)
         return np.asarray(predicted + np.einsum('...hoi,...i->...ho', changes, gains),
                           dtype=float)
+
+    def load_bounds(self) -> tuple[float, float]:
+        """Return the external load [N] the cylinder can carry: cavitation to relief.
+
+        ``A_A p - A_B p_B`` at the cavitation pressure and at the relief setting (the rod
+        side at the charge pressure), widened by the peak thrust's tenth for the force the
+        motion itself takes (mass, damping).
+        """
+        p = self.params
+        rod = p.area_b * p.charge_pressure if self.rod_chamber else 0.0
+        margin = 0.1 * p.peak_thrust
+        return (p.area_a * p.cavitation_pressure - rod - margin,
+                p.area_a * p.relief_pressure - rod + margin)
 
     @property
     def alternatives(self) -> dict[str, tuple[Parameter, ...]]:
@@ -257,7 +396,7 @@ class HasPlant(Plant):
         A drive's velocity loop (a PI controller on the motor's inertia) is at least second
         order; fitted with a first-order lag, its delayed start looks like a transport delay.
         """
-        if self.params.motor_damping_ratio > 0.0:
+        if self.params.motor_damping_ratio > 0.0 or self.speed_input:
             return {}
         return {'second_order_motor': (self._damping_ratio(0.7, None, SECOND_ORDER_GRID),)}
 
@@ -270,9 +409,16 @@ class HasPlant(Plant):
 
     @property
     def effects(self) -> tuple[str, ...]:
-        """Every effect of the library."""
-        return ('coulomb_friction', 'pump_deadzone', 'transport_delay', 'quadratic_leakage',
-                'relief_valve', 'entrained_air')
+        """Every effect of the library that this plant does not have already.
+
+        Not a delay with the measured speed as the input, nor a braking load where the
+        parameter set has a brake (its force is then the baseline's).
+        """
+        return tuple(e for e in ('coulomb_friction', 'braking_load', 'pump_deadzone',
+                                 'transport_delay', 'quadratic_leakage', 'relief_valve',
+                                 'entrained_air')
+                     if not (self.speed_input and e == 'transport_delay')
+                     and not (self.params.brake_force > 0.0 and e == 'braking_load'))
 
     @property
     def unidentifiable(self) -> dict[str, str]:
@@ -302,7 +448,7 @@ class HasPlant(Plant):
         alternatives = self.alternatives
         if effect in alternatives:
             return alternatives[effect]
-        return has_effect_parameters(effect, self.params)
+        return has_effect_parameters(effect, self.params, self.record)
 
     def candidate_parameters(self, values: Candidate) -> tuple[HasParameters, float]:
         """Parameter set of a candidate and its transport delay [s]."""
@@ -327,9 +473,14 @@ class HasPlant(Plant):
         The commands, delayed by ``delay`` (to the nearest sample) and held, through the speed
         loop of ``time_constant`` [s] and ``damping_ratio`` (defaults: the parameter set's;
         first order for a ratio of 0, else second order as :mod:`exo_has_sim.model` has it;
-        exact for held inputs); the spool follows the model's valve law
-        (:func:`exo_has_sim.model.spool_target`, driven by the speed and the measured or
-        load-bearing pressure) through its first-order lag, sample by sample.
+        exact for held inputs; the switched circuit's one-way motor follows their size), or
+        the measured speed itself with :attr:`speed_input`. The compact valve's spool follows
+        the model's valve law (:func:`exo_has_sim.model.spool_target`, driven by the speed and
+        the measured or load-bearing pressure), the switched circuit's direction valve the
+        command's sign (held within ``valve_release_speed``), each through its first-order
+        lag, sample by sample; the closed circuit has no valve to move (1). The drive's
+        torque limit is not applied here: a start state that it would have held back is
+        forgotten in the burn-in.
         """
         params = self.params
         tau = params.motor_time_constant if time_constant is None else time_constant
@@ -342,26 +493,38 @@ class HasPlant(Plant):
             period = self.measurement.period
             command = np.concatenate((np.full(lag, self._u[0]), self._u[:len(self._u) - lag]))
             command = np.clip(command, -params.motor_speed_max, params.motor_speed_max)
-            # The speed at sample k + 1 results from the command held over sample k.
-            if zeta > 0.0:
-                response, rate = _second_order(command, period, tau, zeta)
-                rate = np.concatenate(([0.0], rate[:-1]))
+            one_way = params.circuit == 'switched'
+            if self.speed_input:
+                speed, rate = np.abs(command) if one_way else command, np.zeros(len(command))
             else:
-                response, rate = _first_order(command, period, tau), np.zeros(len(command))
-            speed = np.concatenate(([command[0]], response[:-1]))
-            if self._p is not None:
-                pressure = self._p
-            else:
-                load = self._load if self._load is not None \
-                    else self._load_guess + self._rod_force
-                pressure = load / params.area_a
-            prm = model.pack(params)
+                asked = np.abs(command) if one_way else command
+                # The speed at sample k + 1 results from the command held over sample k.
+                if zeta > 0.0:
+                    response, rate = _second_order(asked, period, tau, zeta)
+                    rate = np.concatenate(([0.0], rate[:-1]))
+                else:
+                    response, rate = _first_order(asked, period, tau), np.zeros(len(asked))
+                speed = np.concatenate(([asked[0]], response[:-1]))
             gain = 1.0 - math.exp(-period / params.valve_time_constant)
-            spool = np.empty(len(speed))
-            s = 1.0
-            for k in range(len(speed)):
-                spool[k] = s
-                s += gain * (model.spool_target(speed[k], pressure[k], s, prm) - s)
+            spool = np.ones(len(speed))
+            if one_way:
+                s = 1.0
+                for k in range(len(speed)):
+                    spool[k] = s
+                    if abs(command[k]) > params.valve_release_speed:
+                        s += gain * (math.copysign(1.0, command[k]) - s)
+            elif params.circuit != 'closed':
+                if self._p is not None:
+                    pressure = self._p
+                else:
+                    load = self._load if self._load is not None \
+                        else self._load_guess + self._rod_force
+                    pressure = load / params.area_a
+                prm = model.pack(params)
+                s = 1.0
+                for k in range(len(speed)):
+                    spool[k] = s
+                    s += gain * (model.spool_target(speed[k], pressure[k], s, prm) - s)
             self._drive_cache[key] = (speed, rate, spool)
         return self._drive_cache[key]
 
@@ -371,15 +534,22 @@ class HasPlant(Plant):
         y0 = np.zeros((len(starts), model.N_STATE))
         y0[:, model.X] = self._x[starts]
         y0[:, model.V] = self._v[starts]
+        if self.rod_chamber:
+            y0[:, model.PB] = self._p_b[starts] if self._p_b is not None \
+                else params.charge_pressure - params.charge_stiffness * (
+                    np.clip(self._x[starts], 0.0, params.stroke) - 0.5 * params.stroke)
         if self._p is not None:
             y0[:, model.PA] = self._p[starts]
         else:
             # Eq. 8 solved for the pressure that gives the measured acceleration.
             v = self._v[starts]
-            force = params.moving_mass * self._a[starts] + params.damping * v + load
+            force = params.moving_mass * self._a[starts] + params.damping * v + load \
+                + params.area_b * y0[:, model.PB]
             fc = params.effects.coulomb_friction
             if fc:
                 force += fc * np.tanh(v / params.effects.friction_smoothing_velocity)
+            if params.brake_force:
+                force += params.brake_force * np.tanh(v / params.brake_velocity)
             y0[:, model.PA] = np.maximum(force / params.area_a, params.cavitation_pressure)
         speed, rate, spool = self.drive(delay, params.motor_time_constant,
                                         params.motor_damping_ratio)
@@ -415,7 +585,7 @@ class HasPlant(Plant):
             lag = math.floor(delay / period + 1e-9)
             # The simulator delays by the fraction of a period; whole periods shift the
             # commands here, so that a window sees the commands sent before it.
-            packed.append(model.pack(params))
+            packed.append(model.pack(params, self.speed_input))
             delays.append(delay - lag * period)
             commands.append(self._u[_delayed_indices(starts, horizon, lag)])
             if self._load is not None:
@@ -437,9 +607,15 @@ class HasPlant(Plant):
                                 np.concatenate(commands, axis=1), np.concatenate(loads, axis=1),
                                 period)
         shape = (len(candidates), windows, horizon)
-        index = {'position': model.X, 'pressure_a': model.PA, 'motor_speed': model.N}
+        index = {'position': model.X, 'pressure_a': model.PA, 'pressure_b': model.PB,
+                 'motor_speed': model.N}
         out = [np.moveaxis(states_out[1:, :, index[name]], 0, 1).reshape(shape)
                for name in self.outputs]
+        if 'motor_speed' in self.outputs and self._signed_speed:
+            # A one-way motor's speed, signed by the direction valve's side as logged.
+            k = self.outputs.index('motor_speed')
+            sign = np.where(np.concatenate(commands, axis=1) < 0.0, -1.0, 1.0)
+            out[k] = out[k] * np.moveaxis(sign, 0, 1).reshape(shape)
         return np.stack(out, axis=-1)
 
 

@@ -134,16 +134,17 @@ def _grows_with_size(effect: str) -> bool:
 
 
 def ladder(grid: Sequence[float], effect: str, count: int = LADDER,
-           below: float = BELOW_GRID) -> tuple[float, ...]:
+           below: float = BELOW_GRID, lowest: float = 0.0) -> tuple[float, ...]:
     """Sizes to try for an effect, weakest first: ``count`` geometric steps.
 
-    From ``below`` times weaker than the grid's weakest to its strongest; a crack pressure,
+    From ``below`` times weaker than the grid's weakest, but not below ``lowest`` (a braking
+    load is no braking load under a seal's friction), to its strongest; a crack pressure,
     whose effect weakens as it rises, is not taken past the grid's highest (the setting
     bounds it).
     """
     low, high = min(grid), max(grid)
     if _grows_with_size(effect):
-        low /= below
+        low = max(low / below, lowest)
     sizes = np.geomspace(low, high, count) if high > low else np.array([low])
     ordered = sizes if _grows_with_size(effect) else sizes[::-1]
     return tuple(float(s) for s in ordered)
@@ -264,7 +265,7 @@ def detection_limits(plant: Plant, model: Fit, model_validation: Evaluation, spa
     for effect in effects:
         parameters = plant.effect_parameters(effect)
         size = parameters[0]
-        sizes = ladder(size.grid or (size.start,), effect)
+        sizes = ladder(size.grid or (size.start,), effect, lowest=size.lower)
         others = {p.name: p.start for p in parameters[1:]}
         tried = evaluate(plant, [model.values | others | {size.name: s} for s in sizes], span,
                          weights)

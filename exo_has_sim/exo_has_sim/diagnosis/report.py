@@ -21,13 +21,17 @@ from exo_has_sim.diagnosis.selection import ALPHA, MIN_GAIN
 
 #: Validation windows shown in the prediction plot.
 SHOWN_WINDOWS = 4
-UNITS = {'position': ('mm', 1e3), 'pressure_a': ('MPa', 1e-6), 'motor_speed': ('rad/s', 1.0)}
+UNITS = {'position': ('mm', 1e3), 'pressure_a': ('MPa', 1e-6), 'pressure_b': ('MPa', 1e-6),
+         'motor_speed': ('rad/s', 1.0)}
 
 
 def summary(diagnosis: Diagnosis) -> str:
     """Summarise in a few lines: the cause, its size and interval, the validated fits."""
     fits = diagnosis.fits()
-    lines = [f'cause: {", ".join(diagnosis.causes) or "none"}']
+    if diagnosis.judgement is not None and not diagnosis.described:
+        lines = ['verdict: structure', *diagnosis.judgement.sentences()]
+    else:
+        lines = [f'cause: {", ".join(diagnosis.causes) or "none"}']
     if diagnosis.structure:
         lines.append(f'baseline structure: {", ".join(diagnosis.structure)} (the data call '
                      'for it; not a cause)')
@@ -51,6 +55,8 @@ def summary(diagnosis: Diagnosis) -> str:
     if diagnosis.transfer is not None:
         lines.append(f"paper's third-order transfer function: position fit "
                      f'{diagnosis.transfer_fit:.2f} %')
+        lines.extend(f'  not a physical model of the HAS, whatever its fit: {why}'
+                     for why in diagnosis.transfer.unphysical())
     if diagnosis.limits:
         lines.append('detection limits in these data (effects left out):')
         lines.extend(f'  {limit.sentence()}' for limit in diagnosis.limits.values())
@@ -112,8 +118,24 @@ def _markdown(diagnosis: Diagnosis, title: str | None) -> str:
            f'{", ".join(d.plant.outputs)}.', '']
     for note in m.notes:
         out.append(f'- {note}')
-    out += ['', '## Verdict', '',
-            f'**Cause: {", ".join(effect_title(c) for c in d.causes) or "none"}**'
+    out += ['', '## Verdict', '']
+    if d.judgement is not None and not d.described:
+        out += ["**The model's structure does not describe these data**: no effect is named, "
+                'since an effect of the library extends a model whose structure is right.', '',
+                '| finding | value | threshold |', '|---|---|---|']
+        out += [f'| {f.text} | {_number(f.value)} | {_number(f.threshold)} |'
+                for f in d.judgement.failed + d.judgement.notes]
+        if d.judgement.alternatives:
+            outputs = d.plant.outputs
+            out += ['', 'The structures the plant can take instead, fitted to the record (best '
+                    'first; validated fits [%]):', '',
+                    '| structure | ' + ' | '.join(outputs) + ' | describes the data |',
+                    '|---|' + '---|' * (len(outputs) + 1)]
+            out += [f'| {a.description} | ' + ' | '.join(
+                '-' if o not in a.fits else f'{a.fits[o]:.1f}' for o in outputs)
+                + f' | {"yes" if a.described else "no"} |' for a in d.judgement.alternatives]
+        out.append('')
+    out += [f'**Cause: {", ".join(effect_title(c) for c in d.causes) or "none"}**'
             + (f' (`{"`, `".join(d.causes)}`)' if d.causes else ''), '']
     if d.structure:
         out.append(f'- Baseline structure the data call for (not a cause): '
@@ -129,7 +151,7 @@ def _markdown(diagnosis: Diagnosis, title: str | None) -> str:
             out.append(f'- {effect_title(effect)}: {size:.4g} {doc["parameters"][name]["unit"]}'
                        f', 95 % interval {_number(low)} to {_number(high)}. '
                        f'{EFFECTS[effect].physics}.')
-    else:
+    elif d.described:
         out.append('No effect of the library improves the validated prediction significantly: '
                    'the baseline with its re-estimated parameters explains the data as well '
                    'as any extension.')
@@ -223,6 +245,8 @@ def _markdown(diagnosis: Diagnosis, title: str | None) -> str:
                 f'{tf.velocity_gain:.4g} (m/s per input unit), continuous by {tf.method}; '
                 f'validated position fit {d.transfer_fit:.2f} % (Sun et al. 2021 report 82.25 % '
                 'for their Eq. 15 on their own rig).', '']
+        out.extend(f'- Not a physical model of the HAS, whatever its fit: {why}.'
+                   for why in tf.unphysical())
     out += [f'Diagnosis time: {d.elapsed:.1f} s.', '']
     return '\n'.join(out)
 

@@ -87,6 +87,34 @@ class ThirdOrderModel:
         """Steady velocity per input, lim s G(s) as s -> 0 [m/s per input unit]."""
         return float(self.num[-1] / self.den[-2]) if self.den[-2] else math.inf
 
+    def unphysical(self) -> list[str]:
+        """Say what makes G(s) no physical model of a pump-driven cylinder (none: empty).
+
+        A HAS extends for a positive speed command, so its velocity gain is positive; the
+        paper's Eq. 12 has its poles but the integrator in the left half-plane and no zeros,
+        Eq. 15 its zeros in the left half-plane too (zeros beyond a quarter of the sampling
+        rate, which sampling puts there, are let be). A model that fits the data with a
+        negative gain or a zero or pole in the right half-plane fits by accident (a window's
+        start state does much of the prediction over a short horizon), and no verdict rests
+        on it.
+        """
+        out = []
+        if not self.velocity_gain > 0.0:
+            out.append(f'velocity gain {self.velocity_gain:.3g} (m/s) per unit of the command, '
+                       'not positive')
+        # Zeros beyond a quarter of the sampling rate are the sampling's (the inverse of the
+        # zero-order hold puts them there), not the plant's.
+        band = 0.5 * math.pi / self.period
+        right = [z for z in self.zeros() if z.real > 0.0 and abs(z) < band]
+        if right:
+            out.append(f'{len(right)} zero(s) in the right half-plane (non-minimum phase): '
+                       + ', '.join(f'{z.real:.3g}{z.imag:+.3g}j' for z in right))
+        unstable = [z for z in self.poles() if z.real > 1e-6 * max(1.0, abs(z))]
+        if unstable:
+            out.append(f'{len(unstable)} unstable pole(s): '
+                       + ', '.join(f'{z.real:.3g}{z.imag:+.3g}j' for z in unstable))
+        return out
+
     def predict(self, u: FloatArray, y: FloatArray, span: Span) -> FloatArray:
         """Simulate each window from the measured positions before it.
 

@@ -1,0 +1,643 @@
+"""Whether the model's structure describes a record, judged before any effect is named.
+
+Every effect of the library extends a model whose structure is right: a friction, a leakage
+or a delay is a small departure from a plant that the baseline otherwise describes. On a rig
+whose circuit the model does not have (a valve-switched or closed circuit, a motor at its
+torque limit), the baseline absorbs the mismatch with values no rig has and the selection
+then names whichever effect bends the wrong structure closest to the data: on the logs of a
+real EHA with a one-way pump and a braking load cylinder it named kilonewtons of "Coulomb
+friction" with tight intervals while the pressure's validated fit was negative. So the
+structure is judged, on evidence a hydraulics engineer would use, each a :class:`Finding`,
+in two stages:
+
+- before any effect is searched for, the evidence the record gives of the circuit and the
+  motor whatever effect it holds (:func:`evidence`): the direction-dependent flow gain, the
+  record's against the model's (a circuit that feeds the rod chamber to retract moves faster
+  per unit of pump flow that way by A_A/A_B, which no single flow gain of the paper's circuit
+  can follow: :func:`direction_gain`); the rod side (in the paper's circuit the rod chamber is
+  the tank's; a measured ``pressure_b`` that carries load says it is a chamber of its own:
+  :func:`rod_pressure`); the motor (a measured speed that falls short of settled commands is
+  a torque or current limit, which the model's speed loop has not: :func:`motor_shortfall`);
+- then, of the model the verdict rests on (the baseline extended with the effects named, or
+  the baseline alone), the validated fit of every measured output (:data:`FIT_THRESHOLDS`)
+  and no fitted parameter at a bound of its search (:func:`fit_findings`). An unbounded 95 %
+  interval is reported, not gating: it says the data do not determine a parameter (the dead
+  volume and the bulk modulus enter mostly as their ratio; a damping that a brake's force
+  takes up goes to nothing, where a log-scale interval opens), which a right structure shows
+  too. These are asked of that model rather than of the baseline before the
+  effects: a hidden effect that the baseline lacks leaves exactly such marks on it (on the
+  truth plants' records a quadratic leakage drove the bulk modulus to its bound and a dead
+  zone left the position's fit at 72 %), which the effect, once named, takes away.
+
+A finding is gating or not: the gating ones decide (:attr:`Judgement.described`); the others
+(a value far from the parameters file, the residuals' whiteness) are reported beside them. A
+record that fails is given the verdict "the model's structure does not describe these data",
+with the findings, and the other structures the plant can take are fitted and ranked
+(:func:`try_structures`) to say which would. The thresholds are set against the truth plants'
+records, which the model's structure does describe (bench/detection.py ``--structure``;
+bench/README.md, "The structure judged first").
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from exo_has_sim.diagnosis.compare import Span, Windows
+from exo_has_sim.diagnosis.effects import seal_friction_limit
+from exo_has_sim.diagnosis.fitting import (
+    Evaluation,
+    Fit,
+    FloatArray,
+    evaluate,
+    fit_parameters,
+    output_weights,
+)
+from exo_has_sim.diagnosis.has_plant import HasPlant
+from exo_has_sim.diagnosis.plants import Plant, smooth
+from exo_has_sim.errors import DiagnosisError, FitError
+
+#: Least validated fit [%] of each output under the baseline for the structure to count as
+#: describing the record.
+FIT_THRESHOLDS = {'position': 80.0, 'pressure_a': 40.0, 'pressure_b': 20.0,
+                  'motor_speed': 50.0}
+#: Largest ratio of the flow gains by direction (measured over predicted velocity, retracting
+#: over extending, or its inverse) a right structure leaves.
+DIRECTION_RATIO = 1.2
+#: Share of the measured motion's 95th percentile below which a sample's velocity is not used
+#: for the flow gain (at rest, the ratio of two small velocities is noise).
+MOVING_SHARE = 0.15
+#: Fewest samples each direction needs for the flow gain to be judged.
+MIN_SAMPLES = 50
+#: Least rise [Pa] of the rod side above the charge pressure (95th percentile) that says it
+#: carries load, and the least share of the rodless side's 95th percentile.
+ROD_LOAD_PRESSURE = 1.0e6
+ROD_LOAD_SHARE = 0.2
+#: A settled command (within 5 % over five motor time constants) of at least this share of
+#: the top speed, reached by less than :data:`MOTOR_REACHED` of it, falls short; more than
+#: :data:`MOTOR_SHORT_SHARE` of such commands short is a finding.
+MOTOR_COMMAND_SHARE = 0.1
+MOTOR_REACHED = 0.8
+MOTOR_SHORT_SHARE = 0.1
+#: A 95 % interval wider than this factor (high over low) is unbounded: the data do not
+#: determine the parameter, which the structure then uses to absorb what it cannot follow.
+INTERVAL_FACTOR = 1e3
+#: A fitted value beyond this factor of the parameters file's (no prior), or beyond this many
+#: prior standard deviations, is reported as far from it (not gating).
+FAR_FACTOR = 10.0
+FAR_SIGMAS = 4.0
+
+Progress = Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One piece of evidence on the model's structure.
+
+    Attributes
+    ----------
+    check : str
+        Identifier (``direction_gain``, ``rod_pressure``, ``motor_shortfall``,
+        ``fit:<output>``, ``bound:<parameter>``, ``interval:<parameter>``,
+        ``far:<parameter>``).
+    passed : bool
+        Whether the structure passes it.
+    value : float
+        The statistic.
+    threshold : float
+        Where it fails.
+    text : str
+        What it says, in a sentence.
+    gating : bool
+        Whether it decides the verdict (else it is reported only).
+
+    """
+
+    check: str
+    passed: bool
+    value: float
+    threshold: float
+    text: str
+    gating: bool = True
+
+    def to_json(self) -> dict[str, Any]:
+        """Return the finding as the JSON document carries it."""
+        return {'check': self.check, 'passed': self.passed, 'value': _finite(self.value),
+                'threshold': _finite(self.threshold), 'text': self.text,
+                'gating': self.gating}
+
+
+@dataclass(frozen=True)
+class Alternative:
+    """Another structure of the plant, fitted to the record.
+
+    Attributes
+    ----------
+    name : str
+        Identifier (``circuit=switched``, ``motor_speed_input``, or both).
+    description : str
+        What it is.
+    fits : dict[str, float]
+        Validated fit [%] of each of its outputs.
+    error : float
+        Geometric mean over the outputs it shares with the original of ``1 - fit / 100``,
+        the normalised error it ranks by.
+    parameters : dict[str, float]
+        Its fitted baseline parameters.
+    findings : tuple[Finding, ...]
+        Its own judgement.
+
+    """
+
+    name: str
+    description: str
+    fits: dict[str, float]
+    error: float
+    parameters: dict[str, float]
+    findings: tuple[Finding, ...] = ()
+
+    @property
+    def described(self) -> bool:
+        """Whether it passes every gating finding of its own."""
+        return all(f.passed for f in self.findings if f.gating)
+
+    def to_json(self) -> dict[str, Any]:
+        """Return the alternative as the JSON document carries it."""
+        return {'name': self.name, 'description': self.description,
+                'fits': {k: _finite(v) for k, v in self.fits.items()},
+                'error': _finite(self.error), 'parameters': dict(self.parameters),
+                'described': self.described,
+                'findings': [f.to_json() for f in self.findings if not f.passed]}
+
+
+@dataclass(frozen=True)
+class Judgement:
+    """The structure's judgement on one record.
+
+    Attributes
+    ----------
+    findings : tuple[Finding, ...]
+        Every finding, gating or not.
+    alternatives : tuple[Alternative, ...]
+        Other structures fitted (best first), when the record failed.
+
+    """
+
+    findings: tuple[Finding, ...]
+    alternatives: tuple[Alternative, ...] = field(default=())
+
+    @property
+    def described(self) -> bool:
+        """Whether the structure passes every gating finding."""
+        return all(f.passed for f in self.findings if f.gating)
+
+    @property
+    def failed(self) -> list[Finding]:
+        """The gating findings the structure fails."""
+        return [f for f in self.findings if f.gating and not f.passed]
+
+    @property
+    def notes(self) -> list[Finding]:
+        """The findings reported only, that the structure fails."""
+        return [f for f in self.findings if not f.gating and not f.passed]
+
+    @property
+    def suggestion(self) -> Alternative | None:
+        """The best alternative that describes the record, if any."""
+        return next((a for a in self.alternatives if a.described), None)
+
+    def sentences(self) -> list[str]:
+        """Say the verdict in lines: what fails, and what structure would describe it."""
+        if self.described:
+            return []
+        lines = ["the model's structure does not describe these data; no effect is named:"]
+        lines += [f'  {f.text}' for f in self.failed]
+        lines += [f'  (also) {f.text}' for f in self.notes]
+        best = self.suggestion
+        if best is not None:
+            fits = ', '.join(f'{k} {v:.1f} %' for k, v in best.fits.items())
+            lines.append(f'  a structure that does: {best.description} (validated fits '
+                         f'{fits}); state it in the parameters file and diagnose again')
+        elif self.alternatives:
+            lines.append('  none of the structures tried describes them either: '
+                         + '; '.join(f'{a.name} (normalised error {a.error:.2f})'
+                                     for a in self.alternatives))
+        return lines
+
+    def to_json(self) -> dict[str, Any]:
+        """Return the judgement as the JSON document carries it."""
+        best = self.suggestion
+        return {'described': self.described,
+                'findings': [f.to_json() for f in self.findings],
+                'alternatives': [a.to_json() for a in self.alternatives],
+                'suggestion': None if best is None else best.name}
+
+
+def _finite(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
+
+
+@dataclass(frozen=True)
+class FlowGains:
+    """The pump's flow gain by direction, from a regression of the rodless chamber's balance.
+
+    ``A_A v = k_ext D_p n+ + k_ret D_p n- - sum_c (L_c p_c + C_c dp_c/dt)`` over the samples
+    in motion (``n+`` the pump speed where positive, else 0; ``n-`` likewise; c each chamber
+    whose pressure is known): the share of the pump's flow each direction turns into the
+    rodless chamber's motion, with the leakage and the compression fitted beside them.
+
+    Attributes
+    ----------
+    extending, retracting : float
+        k_ext and k_ret [-].
+    ratio : float
+        k_ret / k_ext.
+    error : float
+        Standard error of the ratio's logarithm.
+    samples : int
+        Samples used.
+
+    """
+
+    extending: float
+    retracting: float
+    ratio: float
+    error: float
+    samples: int
+
+
+def flow_gains(velocity: FloatArray, speed: FloatArray,
+               pressures: Sequence[tuple[FloatArray, FloatArray]], area: float,
+               displacement: float) -> FlowGains | None:
+    """Regress the rodless chamber's flow balance by direction (:class:`FlowGains`).
+
+    ``pressures`` holds each known chamber pressure [Pa] with its rate [Pa/s], of the
+    velocity's shape.
+
+    Samples count where the pump turns and the cylinder moves the way it pushes (both above
+    :data:`MOVING_SHARE` of their 95th percentiles); None when either direction has fewer
+    than :data:`MIN_SAMPLES` of them or the regression is singular.
+    """
+    v, n = velocity.ravel(), speed.ravel()
+    v_floor = MOVING_SHARE * float(np.percentile(np.abs(v), 95))
+    n_floor = MOVING_SHARE * float(np.percentile(np.abs(n), 95))
+    use = (np.abs(v) > v_floor) & (np.abs(n) > n_floor) & (np.sign(v) == np.sign(n))
+    up, down = use & (n > 0.0), use & (n < 0.0)
+    if np.count_nonzero(up) < MIN_SAMPLES or np.count_nonzero(down) < MIN_SAMPLES:
+        return None
+    columns = [np.where(up, displacement * n, 0.0), np.where(down, displacement * n, 0.0)]
+    for pressure, rate in pressures:
+        columns += [-pressure.ravel(), -rate.ravel()]
+    design = np.column_stack(columns)[use]
+    target = area * v[use]
+    # Columns of flows [m^3/s], pressures [Pa] and pressure rates [Pa/s] differ by 1e13:
+    # scaled to unit spread, the least squares does not lose the small ones.
+    scale = np.std(design, axis=0)
+    scale = np.where(scale > 0.0, scale, 1.0)
+    scaled = design / scale
+    try:
+        coef, *_ = np.linalg.lstsq(scaled, target, rcond=None)
+        residual = target - scaled @ coef
+        dof = max(len(target) - design.shape[1], 1)
+        covariance = np.linalg.inv(scaled.T @ scaled) * float(residual @ residual) / dof
+    except np.linalg.LinAlgError:
+        return None
+    coef = coef / scale
+    covariance = covariance / np.outer(scale, scale)
+    k_ext, k_ret = float(coef[0]), float(coef[1])
+    if not (k_ext > 0.0 and k_ret > 0.0):
+        return None
+    error = math.sqrt(max(covariance[0, 0] / k_ext ** 2 + covariance[1, 1] / k_ret ** 2
+                          - 2.0 * covariance[0, 1] / (k_ext * k_ret), 0.0))
+    return FlowGains(k_ext, k_ret, k_ret / k_ext, error, int(np.count_nonzero(use)))
+
+
+def pump_speed(plant: HasPlant) -> FloatArray:
+    """Return the pump's speed at every sample: measured, or the commands through its loop."""
+    m = plant.measurement
+    if m.has('motor_speed'):
+        return np.asarray(m.optional['motor_speed'], dtype=float)
+    return plant.drive(0.0)[0]
+
+
+def direction_gain(plant: HasPlant, evaluation: Evaluation, span: Span) -> Finding | None:
+    """Compare the flow gains by direction of the record with the model's on the same record.
+
+    :func:`flow_gains` on the measured motion (velocity and pressure rate smoothed from the
+    measured signals) and on the model's prediction over the windows (its velocity the
+    differences of its positions, its own pressure where it predicts one), with the same
+    pump speed (:func:`pump_speed`). A structure that routes the flow as the rig does gives
+    the same ratio of the two directions as the data, whatever its flow gain's error, which
+    scales both; a one-way pump that feeds the rod side to retract, in a model that feeds the
+    rodless side, gives A_A/A_B against 1. None where either regression is not possible.
+    """
+    m = plant.measurement
+    period = m.period
+    index = span.scored()
+    speed = pump_speed(plant)[index]
+    area, displacement = plant.params.area_a, plant.params.pump_displacement
+    measured, predicted = [], []
+    for name in ('pressure_a', 'pressure_b'):
+        if not m.has(name):
+            continue
+        pair = (smooth(m.optional[name], period)[index],
+                smooth(m.optional[name], period, 1)[index])
+        measured.append(pair)
+        if name in plant.outputs:
+            own_p = evaluation.predicted[..., plant.outputs.index(name)]
+            pair = (own_p, np.gradient(own_p, period, axis=1))
+        predicted.append(pair)
+    data = flow_gains(smooth(m.position, period, 1)[index], speed, measured, area,
+                      displacement)
+    own = flow_gains(np.gradient(evaluation.predicted[..., 0], period, axis=1), speed,
+                     predicted, area, displacement)
+    if data is None or own is None:
+        return None
+    value = data.ratio / own.ratio
+    passed = 1.0 / DIRECTION_RATIO <= value <= DIRECTION_RATIO
+    text = (f'flow gain by direction: per unit of pump flow the cylinder retracts '
+            f'{data.ratio:.2f} times as fast as it extends (+-{1.96 * data.error:.1%}, '
+            f'{data.samples} samples), where the model on the same record does '
+            f'{own.ratio:.2f} times: a ratio of {value:.2f} (a right structure: within '
+            f'{DIRECTION_RATIO:g} of 1)')
+    areas = plant.params.area_a / plant.params.area_b
+    if not passed and abs(math.log(value / areas)) < abs(math.log(value)):
+        text += (f'; A_A/A_B is {areas:.2f}: retracting, the pump feeds the rod side (a '
+                 "valve-switched or closed circuit), where the model's circuit feeds the "
+                 'rodless one')
+    return Finding('direction_gain', passed, value, DIRECTION_RATIO, text)
+
+
+def resisting_force(plant: HasPlant) -> tuple[float, float] | None:
+    """Estimate the level [N] of a force resisting the motion both ways, with its error.
+
+    From the measured pressures: ``A_A p_A - A_B p_B - M a = F_0 + F_r sign(v) + B v`` over
+    the samples in motion, by least squares; ``F_r`` is what resists (seal friction, a
+    brake, a throttled load). None without ``pressure_a`` or with too little motion.
+    """
+    m = plant.measurement
+    if not m.has('pressure_a'):
+        return None
+    period, params = m.period, plant.params
+    v = smooth(m.position, period, 1)
+    force = params.area_a * smooth(m.optional['pressure_a'], period) \
+        - params.moving_mass * smooth(m.position, period, 2)
+    if m.has('pressure_b'):
+        force -= params.area_b * smooth(m.optional['pressure_b'], period)
+    moving = np.abs(v) > MOVING_SHARE * float(np.percentile(np.abs(v), 95))
+    if np.count_nonzero(moving & (v > 0)) < MIN_SAMPLES \
+            or np.count_nonzero(moving & (v < 0)) < MIN_SAMPLES:
+        return None
+    design = np.column_stack((np.ones(np.count_nonzero(moving)), np.sign(v[moving]),
+                              v[moving]))
+    target = force[moving]
+    coef, *_ = np.linalg.lstsq(design, target, rcond=None)
+    residual = target - design @ coef
+    covariance = np.linalg.pinv(design.T @ design) * float(residual @ residual) \
+        / max(len(target) - 3, 1)
+    return float(coef[1]), math.sqrt(max(float(covariance[1, 1]), 0.0))
+
+
+def rod_pressure(plant: HasPlant) -> Finding | None:
+    """Say whether a measured rod-side pressure carries load, in the paper's circuit.
+
+    The paper's circuit has the rod chamber open to the tank (its section 3.3, p_B = 0): a
+    pressure there that rises well above the charge pressure is a chamber the pump or a
+    valve pressurises, a circuit of another kind. None when it is not measured or the
+    circuit already has a rod chamber.
+    """
+    m = plant.measurement
+    if not m.has('pressure_b') or plant.rod_chamber:
+        return None
+    rise = float(np.percentile(m.optional['pressure_b'], 95)) - plant.params.charge_pressure
+    threshold = ROD_LOAD_PRESSURE
+    if m.has('pressure_a'):
+        threshold = max(threshold, ROD_LOAD_SHARE * float(np.percentile(m.optional['pressure_a'],
+                                                                        95)))
+    passed = rise <= threshold
+    text = (f'the rod side: pressure_b rises {rise * 1e-6:.2f} MPa above the tank (95th '
+            f"percentile), where the paper's circuit has it at the tank "
+            f'(at most {threshold * 1e-6:.2f} MPa)')
+    if not passed:
+        text += ': the rod chamber carries load, a chamber the circuit pressurises'
+    return Finding('rod_pressure', passed, rise, threshold, text)
+
+
+def motor_shortfall(plant: HasPlant) -> Finding | None:
+    """Say whether the measured motor speed falls short of settled commands.
+
+    A command counts as settled when it stayed within 5 % over the five motor time constants
+    before; it should then be reached, unless the drive is at a torque or current limit.
+    None without a measured motor speed, with the speed as the model's input, or with too
+    few settled commands.
+    """
+    m = plant.measurement
+    if not m.has('motor_speed') or plant.speed_input:
+        return None
+    params = plant.params
+    command = np.abs(np.clip(m.input, -params.motor_speed_max, params.motor_speed_max))
+    speed = np.abs(m.optional['motor_speed'])
+    settle = max(1, round(5.0 * params.motor_time_constant / m.period))
+    if len(command) <= settle:
+        return None
+    rolling_max = np.array([np.max(command[max(0, k - settle):k + 1])
+                            for k in range(len(command))])
+    rolling_min = np.array([np.min(command[max(0, k - settle):k + 1])
+                            for k in range(len(command))])
+    settled = (command > MOTOR_COMMAND_SHARE * params.motor_speed_max) \
+        & (rolling_max - rolling_min <= 0.05 * command)
+    settled[:settle] = False
+    if np.count_nonzero(settled) < MIN_SAMPLES:
+        return None
+    reached = speed[settled] / command[settled]
+    short = float(np.mean(reached < MOTOR_REACHED))
+    passed = short <= MOTOR_SHORT_SHARE
+    worst = int(np.argmin(reached))
+    text = (f'the motor: {short:.0%} of the settled commands were reached by less than '
+            f'{MOTOR_REACHED:.0%} (median {float(np.median(reached)):.0%}; at worst '
+            f'{speed[settled][worst]:.0f} rad/s against {command[settled][worst]:.0f} '
+            'commanded)')
+    if not passed:
+        text += (': a torque or current limit, or a drive that cannot follow, which the '
+                 "model's speed loop has not (--motor-speed-input judges the hydraulics "
+                 'apart from it; motor_inertia in the parameters file models the limit)')
+    return Finding('motor_shortfall', passed, short, MOTOR_SHORT_SHARE, text)
+
+
+def resisting_load(plant: HasPlant) -> Finding | None:
+    """Report a force resisting the motion beyond what a seal's friction can be (not gating).
+
+    Such a force (:func:`resisting_force`) is a load, a brake or a throttled load cylinder; on
+    a right structure the effect ``braking_load`` names it. None where it cannot be estimated
+    or the parameter set already has a brake.
+    """
+    found = resisting_force(plant)
+    if found is None or plant.params.brake_force > 0.0:
+        return None
+    level, error = found
+    seal = seal_friction_limit(plant.params)
+    passed = level - 3.0 * error <= seal
+    text = (f'a force resists the motion both ways: {level:.0f} N (+-{1.96 * error:.0f}), '
+            f'from the measured pressures')
+    text += (f', within what seal friction can be here (up to {seal:.0f} N)' if passed else
+             f', beyond what seal friction can be here (up to {seal:.0f} N): a brake or a '
+             'throttled load')
+    return Finding('resisting_load', passed, level, seal, text, gating=False)
+
+
+def fit_findings(plant: Plant, fit: Fit, validation: Evaluation) -> list[Finding]:
+    """Judge the baseline's fit of every output and its parameters: at bounds, unbounded, far."""
+    out = []
+    for k, output in enumerate(plant.outputs):
+        threshold = FIT_THRESHOLDS.get(output, 0.0)
+        value = validation.fit(k)
+        out.append(Finding(f'fit:{output}', bool(value >= threshold), value, threshold,
+                           f'{output}: validated fit {value:.1f} % (a right structure: at '
+                           f'least {threshold:g} %)'))
+    for parameter in fit.free:
+        value = fit.values[parameter.name]
+        if parameter.name in fit.at_bound:
+            out.append(Finding(f'bound:{parameter.name}', False, value, math.nan,
+                               f'{parameter.name} ended at a bound of its search, '
+                               f'{value:.4g} {parameter.unit} ({parameter.description})'))
+        low, high = fit.interval.get(parameter.name, (-math.inf, math.inf))
+        if parameter.log:
+            width = high / low if low > 0.0 and math.isfinite(high) else math.inf
+        else:
+            scale = parameter.scale or 1.0
+            width = math.exp((high - low) / scale) if math.isfinite(high - low) else math.inf
+        if not width <= INTERVAL_FACTOR:
+            out.append(Finding(f'interval:{parameter.name}', False, width, INTERVAL_FACTOR,
+                               f'{parameter.name}: 95 % interval {low:.3g} to {high:.3g} '
+                               f'{parameter.unit}, unbounded (the data do not determine it)',
+                               gating=False))
+        if parameter.log and parameter.name != 'load_force':
+            ratio = value / parameter.start
+            sigmas = abs(math.log(ratio)) / parameter.prior if parameter.prior else math.nan
+            far = sigmas > FAR_SIGMAS if parameter.prior else not (
+                1.0 / FAR_FACTOR <= ratio <= FAR_FACTOR)
+            if far:
+                out.append(Finding(f'far:{parameter.name}', False, ratio, FAR_FACTOR,
+                                   f'{parameter.name} fitted at {ratio:.3g} times the '
+                                   f"parameters file's {parameter.start:.4g} "
+                                   f'{parameter.unit}', gating=False))
+    return out
+
+
+def evidence(plant: Plant, everything: Evaluation, span: Span) -> list[Finding]:
+    """Gather the record's evidence of the circuit and the motor, whatever effect it holds.
+
+    ``everything`` is the baseline on every window ``span`` (for the flow gain by
+    direction). Empty for a plant other than the HAS.
+    """
+    if not isinstance(plant, HasPlant):
+        return []
+    found = (direction_gain(plant, everything, span), rod_pressure(plant),
+             motor_shortfall(plant), resisting_load(plant))
+    return [finding for finding in found if finding is not None]
+
+
+def judge(plant: Plant, fit: Fit, validation: Evaluation, everything: Evaluation,
+          span: Span) -> Judgement:
+    """Judge whether a fitted model's structure describes the record: both stages at once.
+
+    Parameters
+    ----------
+    plant : Plant
+        The plant and its measurement.
+    fit : Fit
+        The model's fit.
+    validation : Evaluation
+        It on the validation windows.
+    everything : Evaluation
+        It on every window ``span`` (for the flow gain by direction).
+    span : Span
+        Every window.
+
+    """
+    return Judgement((*evidence(plant, everything, span),
+                      *fit_findings(plant, fit, validation)))
+
+
+def _error(fits: dict[str, float], outputs: Sequence[str]) -> float:
+    shared = [max(1.0 - fits[o] / 100.0, 1e-6) for o in outputs if o in fits]
+    return math.exp(float(np.mean(np.log(shared)))) if shared else math.inf
+
+
+CIRCUIT_TITLES = {
+    'paper': "the paper's circuit (the pump between the tank and the rodless chamber)",
+    'two_chamber': "the paper's pump with the rod side a chamber returning through a line",
+    'closed': 'a closed circuit: the pump between the chambers, flow matching to a charge line',
+    'switched': 'a one-way pump with direction valves, the other chamber draining to an '
+                'accumulator'}
+
+
+#: A force resisting the motion both ways beyond this share of the peak thrust (and three
+#: standard errors) is given to the structures tried as a brake to fit.
+BRAKE_SHARE = 0.01
+
+
+def candidate_structures(plant: HasPlant, judgement: Judgement) -> list[tuple[str, str,
+                                                                              HasPlant]]:
+    """List the other structures to fit: every other circuit, the measured speed as input.
+
+    The measured speed becomes the input where the motor fell short of its commands (and
+    with each other circuit then too); a force resisting the motion both ways
+    (:func:`resisting_force`) becomes a brake of every structure, its size fitted.
+    """
+    short = any(f.check == 'motor_shortfall' for f in judgement.failed)
+    speed = [False, True] if short and plant.measurement.has('motor_speed') else [False]
+    brake = 0.0
+    found = resisting_force(plant) if plant.params.brake_force <= 0.0 else None
+    if found is not None and found[0] > max(3.0 * found[1],
+                                            BRAKE_SHARE * plant.params.peak_thrust):
+        brake = found[0]
+    out = []
+    for circuit in CIRCUIT_TITLES:
+        for speed_input in speed:
+            if circuit == plant.params.circuit and speed_input == plant.speed_input \
+                    and not brake:
+                continue
+            name = f'circuit={circuit}' + (', motor_speed_input' if speed_input else '') \
+                + (', brake' if brake else '')
+            title = CIRCUIT_TITLES[circuit] + (', driven by the measured motor speed'
+                                               if speed_input else '') \
+                + (f', with a brake of about {brake:.0f} N' if brake else '')
+            out.append((name, title, plant.restructured(circuit, speed_input, brake)))
+    return out
+
+
+def try_structures(plant: HasPlant, judgement: Judgement, windows: Windows,
+                   progress: Progress | None = None) -> Judgement:
+    """Fit the plant's other structures to the record and rank them (best first).
+
+    Each takes its own baseline fit (its weights made as the diagnosis makes them) and is
+    judged by the same findings; they are ranked by their normalised error over the outputs
+    they share with the plant.
+    """
+    alternatives = []
+    for name, title, other in candidate_structures(plant, judgement):
+        if progress:
+            progress(f'  fitting the structure {name}')
+        weights = output_weights(other)
+        try:
+            fit = fit_parameters(other, other.baseline, {}, windows.estimation_span, weights,
+                                 max_iterations=6, tolerance=1e-2)
+        except (FitError, DiagnosisError):
+            continue
+        validation = evaluate(other, [fit.values], windows.validation_span, weights)[0]
+        everything = evaluate(other, [fit.values], windows.span, weights)[0]
+        fits = {output: validation.fit(k) for k, output in enumerate(other.outputs)}
+        own = judge(other, fit, validation, everything, windows.span)
+        alternatives.append(Alternative(name, title, fits, _error(fits, plant.outputs),
+                                        {p.name: fit.values[p.name] for p in fit.free},
+                                        own.findings))
+        if progress:
+            progress(f'    validated fits {", ".join(f"{k} {v:.1f} %" for k, v in fits.items())}'
+                     f'{"" if own.described else " (not described either)"}')
+    alternatives.sort(key=lambda a: (not a.described, a.error))
+    return Judgement(judgement.findings, tuple(alternatives))

@@ -1,0 +1,164 @@
+"""The structure judged before any effect is named: its evidence, its verdict, its suggestion.
+
+The records here come from the project's own model in its other circuits, which checks the
+mechanics; test/test_third_truth_plant_diagnosis.py checks the verdict on a rig simulated apart
+from the model.
+"""
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from exo_has_sim import model
+from exo_has_sim.diagnosis.cli import STRUCTURE_STATUS, main
+from exo_has_sim.diagnosis.compare import horizon_samples, make_windows
+from exo_has_sim.diagnosis.diagnose import load_plant
+from exo_has_sim.diagnosis.fitting import evaluate, fit_parameters, output_weights
+from exo_has_sim.diagnosis.structure import (
+    flow_gains,
+    judge,
+    motor_shortfall,
+    resisting_force,
+)
+from exo_has_sim.diagnosis.transfer import ThirdOrderModel
+from exo_has_sim.parameters import load_parameters
+from exo_has_sim.simulate import simulate_closed_loop
+
+HIP = load_parameters('hip')
+PERIOD = 0.005
+BRAKE = 800.0  # [N]
+
+
+def record(params, path, seconds=12.0, load=0.0, seed=4):
+    """Write a closed-loop record of the model with these parameters as a CSV log."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(round(seconds / PERIOD)) * PERIOD
+    freqs = np.geomspace(0.2, 2.0, 6)
+    phases = rng.uniform(0.0, 2.0 * np.pi, 6)
+    amplitudes = 0.012 / (1.0 + freqs)
+    x_ref = 0.065 + np.sin(np.outer(t, 2 * np.pi * freqs) + phases) @ amplitudes
+    v_ref = np.cos(np.outer(t, 2 * np.pi * freqs) + phases) @ (amplitudes * 2 * np.pi * freqs)
+    y0 = model.initial_state(params, x_ref[0], load)
+    gains = np.array([[35000.0, 15.0, params.area_a / params.pump_displacement]])
+    result = simulate_closed_loop([params], y0[None, :], x_ref[:, None], v_ref[:, None],
+                                  np.full(len(t), load), gains, PERIOD)
+    states = result.states[:-1, 0]  # the state each command answered
+    noise = rng.standard_normal((4, len(t)))
+    speed = states[:, model.N] * (np.where(result.commands[:, 0] < 0.0, -1.0, 1.0)
+                                  if params.circuit == 'switched' else 1.0)
+    columns = {'time': t, 'motor_speed_command': result.commands[:, 0],
+               'position': states[:, model.X] + 3e-6 * noise[0], 'reference': x_ref,
+               'pressure_a': states[:, model.PA] + 20e3 * noise[1],
+               'pressure_b': states[:, model.PB] + 20e3 * noise[2] + (
+                   0.1e6 if params.circuit == 'paper' else 0.0),
+               'motor_speed': speed + noise[3]}
+    with path.open('w', newline='') as handle:
+        writer = csv.writer(handle)
+        writer.writerow(list(columns))
+        writer.writerows(np.column_stack(list(columns.values())).tolist())
+    return path
+
+
+@pytest.fixture(scope='module')
+def switched_log(tmp_path_factory):
+    rig = HIP.replace(circuit='switched', charge_pressure=0.5e6, brake_force=BRAKE,
+                      load_mass=30.0)
+    return record(rig, tmp_path_factory.mktemp('structure') / 'switched.csv')
+
+
+def baseline_of(plant):
+    m = plant.measurement
+    windows = make_windows(m.samples, horizon_samples(0.5, m.period), plant.first_start, 20)
+    weights = output_weights(plant)
+    fit = fit_parameters(plant, plant.baseline, {}, windows.estimation_span, weights,
+                         max_iterations=6)
+    validation = evaluate(plant, [fit.values], windows.validation_span, weights)[0]
+    everything = evaluate(plant, [fit.values], windows.span, weights)[0]
+    return judge(plant, fit, validation, everything, windows.span)
+
+
+def test_the_flow_gains_by_direction_come_out_of_a_known_balance():
+    rng = np.random.default_rng(0)
+    samples, area, displacement = 4000, 1.5e-4, 6.4e-8
+    speed = 200.0 * np.sin(np.linspace(0.0, 40.0, samples)) + rng.normal(0.0, 5.0, samples)
+    pressure = 5e6 + 2e6 * rng.standard_normal(samples)
+    rate = 1e8 * rng.standard_normal(samples)
+    flow = np.where(speed > 0.0, 0.95, 1.40) * displacement * speed - 2e-13 * pressure \
+        - 1e-14 * rate
+    gains = flow_gains(flow / area, speed, [(pressure, rate)], area, displacement)
+    assert gains.extending == pytest.approx(0.95, rel=1e-6)
+    assert gains.retracting == pytest.approx(1.40, rel=1e-6)
+    assert gains.ratio == pytest.approx(1.40 / 0.95, rel=1e-6)
+
+
+def test_a_valve_switched_record_fitted_with_the_papers_circuit_names_no_effect(switched_log,
+                                                                                tmp_path):
+    out = tmp_path / 'diagnosis.json'
+    code = main([str(switched_log), '--joint', 'hip', '--load-mass', '30', '--json', str(out),
+                 '-q'])
+    doc = json.loads(out.read_text())
+    assert code == STRUCTURE_STATUS
+    assert doc['verdict'] == 'structure' and doc['causes'] == [] and doc['steps'] == []
+    failed = {f['check']: f for f in doc['structure']['findings']
+              if f['gating'] and not f['passed']}
+    ratio = HIP.area_a / HIP.area_b
+    assert failed['direction_gain']['value'] == pytest.approx(ratio, rel=0.1)
+    assert 'A_A/A_B' in failed['direction_gain']['text']
+    assert 'rod_pressure' in failed
+    assert doc['structure']['suggestion'].startswith('circuit=switched')
+    best = doc['structure']['alternatives'][0]
+    assert best['parameters']['brake_force'] == pytest.approx(BRAKE, rel=0.1)
+    assert best['fits']['pressure_a'] > 80.0
+
+
+def test_the_right_circuit_in_the_parameters_file_describes_the_same_record(switched_log,
+                                                                             tmp_path):
+    plant = load_plant(switched_log, 'has', 'hip', 30.0)
+    right = plant.restructured('switched', False, BRAKE)
+    judgement = baseline_of(right)
+    assert judgement.described, [f.text for f in judgement.failed]
+    gain = next(f for f in judgement.findings if f.check == 'direction_gain')
+    assert gain.value == pytest.approx(1.0, abs=0.1)
+
+
+def test_a_paper_circuit_record_with_friction_is_described(tmp_path):
+    path = record(HIP.replace(load_mass=50.0).with_effects(coulomb_friction=80.0),
+                  tmp_path / 'paper.csv', load=50.0 * 9.81)
+    judgement = baseline_of(load_plant(path, 'has', 'hip', 50.0))
+    assert judgement.described, [f.text for f in judgement.failed]
+    assert {f.check for f in judgement.findings} >= {'direction_gain', 'rod_pressure',
+                                                     'motor_shortfall', 'fit:position'}
+
+
+def test_a_force_resisting_both_ways_is_estimated_from_the_pressures(switched_log):
+    level, error = resisting_force(load_plant(switched_log, 'has', 'hip', 30.0))
+    assert level == pytest.approx(BRAKE, rel=0.05) and error < 0.05 * BRAKE
+
+
+def test_a_motor_at_its_torque_limit_falls_short_of_its_commands(tmp_path):
+    limited = HIP.replace(circuit='switched', charge_pressure=0.5e6, brake_force=1100.0,
+                          load_mass=30.0, motor_inertia=2e-5, motor_torque_peak=0.6)
+    path = record(limited, tmp_path / 'limited.csv', seconds=6.0)
+    plant = load_plant(path, 'has', 'hip', 30.0)
+    finding = motor_shortfall(plant)
+    assert not finding.passed and 'torque or current limit' in finding.text
+    free = load_plant(record(limited.replace(motor_inertia=0.0), tmp_path / 'free.csv',
+                             seconds=6.0), 'has', 'hip', 30.0)
+    assert motor_shortfall(free).passed
+
+
+def test_a_transfer_function_with_a_negative_gain_or_a_right_half_plane_zero_is_unphysical():
+    def model_of(num, den):
+        return ThirdOrderModel(np.zeros(2), np.zeros(3), PERIOD, np.asarray(num, float),
+                               np.asarray(den, float), 'zoh')
+
+    good = model_of([1.0, 159.0, 1431.0], [1.0, 32.0, 150.0, 0.0])
+    assert good.unphysical() == []
+    negative = model_of([1.0, 159.0, -1431.0], [1.0, 32.0, 150.0, 0.0])
+    reasons = negative.unphysical()
+    assert any('not positive' in r for r in reasons)
+    assert any('right half-plane' in r for r in reasons)
+    unstable = model_of([1431.0], [1.0, -5.0, 150.0, 0.0])
+    assert any('unstable' in r for r in unstable.unphysical())
