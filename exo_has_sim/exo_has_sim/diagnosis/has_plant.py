@@ -166,6 +166,9 @@ class HasPlant(Plant):
         self.speed_input = speed_input
         base = params if load_mass is None else replace(params, load_mass=load_mass)
         self.params = replace(base, effects=Effects())
+        if measurement.has('load_force') and self.params.brake_force > 0.0:
+            # A measured load is the whole external force on the rod, a brake's included.
+            self.params = replace(self.params, brake_force=0.0)
         self.rod_chamber = self.params.circuit != 'paper'
         measured = ['pressure_a', 'motor_speed']
         if self.rod_chamber:
@@ -230,8 +233,9 @@ class HasPlant(Plant):
         size to start from (fitted in the baseline); 0 keeps the parameter set's.
         """
         params = replace(self.params, circuit=circuit)
-        if brake_force > 0.0:
-            params = replace(params, brake_force=brake_force)
+        if brake_force > 0.0:  # estimated from the record: fitted, within a factor 2 or so
+            params = replace(params, brake_force=brake_force,
+                             uncertainty={**params.uncertainty, 'brake_force': 0.5})
         if circuit != 'paper' and not self.rod_chamber and self._p is not None:
             if self._p_b is not None:
                 # The lower chamber drains to the charge: its pressure against the extension
@@ -265,9 +269,10 @@ class HasPlant(Plant):
                       'effective bulk modulus E_y of oil, hose and seals',
                       prior=prior('bulk_modulus')),
             Parameter('pump_leakage', 'm^3/(s Pa)', p.pump_leakage, 1e-16, 1e-11,
-                      'pump inner leakage coefficient L_n', prior=prior('pump_leakage')),
+                      'pump inner leakage coefficient L_n', prior=prior('pump_leakage'),
+                      negligible_floor=True),
             Parameter('damping', 'N s/m', p.damping, 10.0, 1e5, 'viscous damping B',
-                      prior=prior('damping')),
+                      prior=prior('damping'), negligible_floor=True),
             Parameter('motor_time_constant', 's', p.motor_time_constant,
                       p.motor_time_constant / 10.0, p.motor_time_constant * 10.0,
                       'time constant of the motor speed loop',
@@ -302,7 +307,9 @@ class HasPlant(Plant):
                                      p.charge_stiffness / 10.0, p.charge_stiffness * 10.0,
                                      "fall of the accumulator's pressure per metre of "
                                      'extension', prior=prior('charge_stiffness')))
-        if p.brake_force > 0.0:
+        if p.brake_force > 0.0 and 'brake_force' in p.uncertainty:
+            # A brake known only roughly (its file states an uncertainty) is fitted; one
+            # stated exactly is held.
             out.append(Parameter('brake_force', 'N', p.brake_force, p.brake_force / 20.0,
                                  p.brake_force * 20.0, 'force of the known brake',
                                  prior=prior('brake_force')))
@@ -436,6 +443,13 @@ class HasPlant(Plant):
         and every effect tried.
         """
         if not self.window_load:  # the same records: pressure or load known, or constant
+            if self.params.brake_force > 0.0 and any(p.name == 'brake_force'
+                                                     for p in self.baseline):
+                return {'coulomb_friction': (
+                    "a seal's friction resists the motion as the brake the parameter set "
+                    "declares does, whose force the baseline fits: it cannot be told from "
+                    'the brake (record the load_force, or state the brake without '
+                    'uncertainty)')}
             return {}
         why = ('it acts on the motion only through the rodless pressure, and with neither '
                'pressure_a nor load_force measured a load that varies unmeasured would make '
@@ -612,9 +626,11 @@ class HasPlant(Plant):
         out = [np.moveaxis(states_out[1:, :, index[name]], 0, 1).reshape(shape)
                for name in self.outputs]
         if 'motor_speed' in self.outputs and self._signed_speed:
-            # A one-way motor's speed, signed by the direction valve's side as logged.
+            # A one-way motor's speed, signed as the logger signs it: by the command it sent
+            # at that sample (the drive acts on it a transport delay later).
             k = self.outputs.index('motor_speed')
-            sign = np.where(np.concatenate(commands, axis=1) < 0.0, -1.0, 1.0)
+            sent = self._u[_delayed_indices(starts, horizon, 0)]
+            sign = np.where(np.tile(sent, (1, len(candidates))) < 0.0, -1.0, 1.0)
             out[k] = out[k] * np.moveaxis(sign, 0, 1).reshape(shape)
         return np.stack(out, axis=-1)
 

@@ -76,6 +76,10 @@ class Parameter:
         Standard deviation, in the search coordinate, of a Gaussian prior centred on
         ``start`` (for a log-scale parameter, 0.2 is about +-20 %): what the parameters
         file's value is worth. None: no prior, the data alone decide.
+    negligible_floor : bool
+        Whether the lower bound stands for "none of it" (a damping or a leakage too small to
+        matter), so that a fit ending there says only that the data need none, not that the
+        model's structure is wrong (:mod:`~exo_has_sim.diagnosis.structure`).
 
     """
 
@@ -88,6 +92,7 @@ class Parameter:
     scale: float | None = None
     grid: tuple[float, ...] = ()
     prior: float | None = None
+    negligible_floor: bool = False
 
     def __post_init__(self) -> None:
         positive = self.scale is not None or self.lower > 0.0

@@ -220,14 +220,20 @@ def _screen(plant: Plant, reference: Fit, effects: Sequence[str], windows: Windo
     return best, reference_cost
 
 
-def _strayed(plant: Plant, reference: Fit) -> bool:
-    """Tell whether a baseline parameter lies beyond :data:`STRAY_FACTOR` of its start."""
+def _strays(plant: Plant, reference: Fit) -> dict[str, float]:
+    """Return the baseline parameters beyond :data:`STRAY_FACTOR` of their start, at it."""
+    out = {}
     for parameter in plant.baseline:
         value = reference.values.get(parameter.name, parameter.start)
         if parameter.scale is None and not (parameter.start / STRAY_FACTOR <= value
                                             <= parameter.start * STRAY_FACTOR):
-            return True
-    return False
+            out[parameter.name] = parameter.start
+    return out
+
+
+def _strayed(plant: Plant, reference: Fit) -> bool:
+    """Tell whether a baseline parameter lies beyond :data:`STRAY_FACTOR` of its start."""
+    return bool(_strays(plant, reference))
 
 
 def rank(plant: Plant, reference: Fit, reference_validation: Evaluation, named: Sequence[str],
@@ -248,6 +254,17 @@ def rank(plant: Plant, reference: Fit, reference_validation: Evaluation, named: 
     if progress:
         progress(f'  trying the size grids of {len(effects)} effects')
     screened, reference_cost = _screen(plant, reference, effects, windows, weights)
+    strays = _strays(plant, reference)
+    if strays:
+        # The reference's parameters strayed from nominal to absorb something (a motor lag
+        # five times its file's value taking up an 18 ms delay): tried on top of them, the
+        # effect that they absorb looks useless. So each grid is tried with each strayed
+        # parameter back at its nominal value too, and the best screening counts.
+        for name, start in strays.items():
+            reset, _ = _screen(plant, Fit(reference.values | {name: start}, reference.free),
+                               effects, windows, weights)
+            screened = {e: min(screened[e], reset[e], key=lambda item: item[1])
+                        for e in effects}
     order = sorted(effects, key=lambda e: screened[e][1])
     best = screened[order[0]][1]
     joint = order if every else [e for e in order[:JOINT_FITS]
@@ -327,10 +344,12 @@ def hidden_rivals(plant: Plant, steps: Sequence[Sequence[Score]], baseline: Fit,
                   baseline_validation: Evaluation, windows: Windows, weights: FloatArray,
                   effects: Sequence[str], progress: Progress | None = None,
                   ) -> dict[str, list[str]]:
-    """Effects the signals cannot identify that explain what a named choice explains.
+    """Effects among ``effects`` that explain what a named choice explains as well.
 
-    Such an effect (:attr:`~exo_has_sim.diagnosis.plants.Plant.unidentifiable`) is never
-    named, but it may still produce what a named one is named for: in a record of the
+    The diagnosis passes those the signals cannot identify and, without a pressure signal,
+    every other effect too. An unidentifiable one
+    (:attr:`~exo_has_sim.diagnosis.plants.Plant.unidentifiable`) is never named, but it may
+    still produce what a named one is named for: in a record of the
     position alone, friction moves the pressure at each reversal, and the leakage turns that
     into lost motion, as a dead zone or a delay would. So each step's named choice is checked
     against them: each is fitted jointly on top of the step's reference, and again from the
@@ -365,7 +384,12 @@ def hidden_rivals(plant: Plant, steps: Sequence[Sequence[Score]], baseline: Fit,
             return score.ratio < 1.0 and _paired_p(best.validation, score.validation) >= ALPHA
 
         # A fit that is a rival already needs no second start: a better fit stays one.
-        ranking = rank(plant, reference, reference_validation, named, effects, windows,
+        others = [e for e in effects if e != best.effect and e not in named]
+        if not others:
+            named.append(best.effect)
+            reference, reference_validation = best.fit, best.validation
+            continue
+        ranking = rank(plant, reference, reference_validation, named, others, windows,
                        weights, progress, every=True, enough=rival)
         found = [score.effect for score in ranking if rival(score)]  # each fitted jointly
         if found:

@@ -432,11 +432,12 @@ def motor_shortfall(plant: HasPlant) -> Finding | None:
 
     A command counts as settled when it stayed within 5 % over the five motor time constants
     before; it should then be reached, unless the drive is at a torque or current limit.
-    None without a measured motor speed, with the speed as the model's input, or with too
+    None without a measured motor speed, with the speed as the model's input, where the
+    model has the motor's torque limit (the motor speed's fit then judges it), or with too
     few settled commands.
     """
     m = plant.measurement
-    if not m.has('motor_speed') or plant.speed_input:
+    if not m.has('motor_speed') or plant.speed_input or plant.params.motor_inertia > 0.0:
         return None
     params = plant.params
     command = np.abs(np.clip(m.input, -params.motor_speed_max, params.motor_speed_max))
@@ -490,7 +491,13 @@ def resisting_load(plant: HasPlant) -> Finding | None:
 
 
 def fit_findings(plant: Plant, fit: Fit, validation: Evaluation) -> list[Finding]:
-    """Judge the baseline's fit of every output and its parameters: at bounds, unbounded, far."""
+    """Judge a model's fit of every output and its parameters: at bounds, unbounded, far.
+
+    An unbounded interval of the baseline's parameters is reported only (module docstring);
+    of a named effect's parameter it gates: no verdict rests on a size the data do not
+    determine.
+    """
+    baseline = {parameter.name for parameter in plant.baseline}
     out = []
     for k, output in enumerate(plant.outputs):
         threshold = FIT_THRESHOLDS.get(output, 0.0)
@@ -501,9 +508,15 @@ def fit_findings(plant: Plant, fit: Fit, validation: Evaluation) -> list[Finding
     for parameter in fit.free:
         value = fit.values[parameter.name]
         if parameter.name in fit.at_bound:
+            # A damping or a leakage at its floor is one the data do not need: no sign of a
+            # wrong structure (reported), unlike an oil stiffer than oil.
+            nil = parameter.negligible_floor and value < math.sqrt(parameter.lower
+                                                                   * parameter.start)
             out.append(Finding(f'bound:{parameter.name}', False, value, math.nan,
                                f'{parameter.name} ended at a bound of its search, '
-                               f'{value:.4g} {parameter.unit} ({parameter.description})'))
+                               f'{value:.4g} {parameter.unit} ({parameter.description})'
+                               + (': the data need none of it' if nil else ''),
+                               gating=not nil))
         low, high = fit.interval.get(parameter.name, (-math.inf, math.inf))
         if parameter.log:
             width = high / low if low > 0.0 and math.isfinite(high) else math.inf
@@ -514,7 +527,7 @@ def fit_findings(plant: Plant, fit: Fit, validation: Evaluation) -> list[Finding
             out.append(Finding(f'interval:{parameter.name}', False, width, INTERVAL_FACTOR,
                                f'{parameter.name}: 95 % interval {low:.3g} to {high:.3g} '
                                f'{parameter.unit}, unbounded (the data do not determine it)',
-                               gating=False))
+                               gating=parameter.name not in baseline))
         if parameter.log and parameter.name != 'load_force':
             ratio = value / parameter.start
             sigmas = abs(math.log(ratio)) / parameter.prior if parameter.prior else math.nan
