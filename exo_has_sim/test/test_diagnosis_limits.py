@@ -61,12 +61,13 @@ def test_a_ladder_runs_from_the_weakest_effect_and_a_crack_pressure_from_the_hig
 
 def test_the_limit_is_the_weakest_size_from_which_every_stronger_one_is_named():
     limit = DetectionLimit('coulomb_friction', 'N', (1.0, 2.0, 4.0, 8.0),
-                           (True, False, True, True), 4.0)
+                           (True, False, True, True), 4.0, projected=4.0)
     assert not limit.below_range
     assert 'under about 4 N cannot be told from noise' in limit.sentence()
     assert limit.to_json() == {'limit': 4.0, 'unit': 'N', 'below_range': False,
                                'sizes': [1.0, 2.0, 4.0, 8.0],
-                               'named': [True, False, True, True], 'refused': None}
+                               'named': [True, False, True, True], 'refused': None,
+                               'projected': 4.0, 'stated': True}
     crack = DetectionLimit('relief_valve', 'Pa', (13e6, 11e6), (False, True), 11e6)
     assert 'above about 1.1e+07 Pa cannot be told' in crack.sentence()
     never = DetectionLimit('transport_delay', 's', (0.001, 0.04), (False, False), None)

@@ -92,9 +92,17 @@ def test_the_flow_gains_by_direction_come_out_of_a_known_balance():
     speed = 200.0 * np.sin(np.linspace(0.0, 40.0, samples)) + rng.normal(0.0, 5.0, samples)
     pressure = 5e6 + 2e6 * rng.standard_normal(samples)
     rate = 1e8 * rng.standard_normal(samples)
+    # A relief valve cracked at 7 MPa loses flow from the loaded chamber both ways: a loss
+    # that bends with the pressure, not a flow gain that differs by direction.
+    relief = 3e-12 * np.maximum(pressure - 7e6, 0.0)
     flow = np.where(speed > 0.0, 0.95, 1.40) * displacement * speed - 2e-13 * pressure \
-        - 1e-14 * rate
-    gains = flow_gains(flow / area, speed, [(pressure, rate)], area, displacement)
+        - 1e-14 * rate - relief
+    knots = tuple(np.percentile(pressure, (50.0, 75.0, 90.0)))
+    gains = flow_gains(flow / area, speed, [(pressure, rate, knots)], area, displacement)
+    assert gains.extending == pytest.approx(0.95, rel=0.02)
+    assert gains.retracting == pytest.approx(1.40, rel=0.02)
+    flow = flow + relief  # with the loss a line of the pressure, the regression is exact
+    gains = flow_gains(flow / area, speed, [(pressure, rate, knots)], area, displacement)
     assert gains.extending == pytest.approx(0.95, rel=1e-6)
     assert gains.retracting == pytest.approx(1.40, rel=1e-6)
     assert gains.ratio == pytest.approx(1.40 / 0.95, rel=1e-6)
@@ -184,8 +192,9 @@ def test_a_parameter_at_its_bound_or_an_effect_the_data_do_not_bound_is_no_groun
     measured = np.ones((3, 10, len(plant.outputs))) * np.arange(10)[None, :, None]
     validation = Evaluation(measured, measured, np.ones(len(plant.outputs)))
     found = {f.check: f for f in fit_findings(plant, fit, validation)}
-    # An oil stiffer than any oil gates; a damping the data do not need does not.
-    assert found['bound:bulk_modulus'].gating and not found['bound:bulk_modulus'].passed
+    # Reported, not gating: a hidden effect drives such parameters to their bounds on records
+    # the structure describes (the second truth plant's bulk modulus to 3e9 Pa).
+    assert not found['bound:bulk_modulus'].gating and not found['bound:bulk_modulus'].passed
     assert not found['bound:damping'].gating and 'need none' in found['bound:damping'].text
     # A baseline parameter the data do not determine is reported; an effect's size gates.
     assert not found['interval:damping'].gating

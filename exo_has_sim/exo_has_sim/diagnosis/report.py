@@ -174,8 +174,8 @@ def _markdown(diagnosis: Diagnosis, title: str | None) -> str:
                 '| effect | limit | sizes tried (named marked *) |', '|---|---|---|']
         for effect, limit in d.limits.items():
             unit = '' if limit.unit in ('', '-') else f' {limit.unit}'
-            value = ('none tried' if limit.limit is None else
-                     f'{limit.limit:.3g}{unit}{" or weaker" if limit.below_range else ""}')
+            value = ('not stated' if not limit.stated else 'none tried' if limit.limit is None
+                     else f'{limit.limit:.3g}{unit}{" or weaker" if limit.below_range else ""}')
             tried = ', '.join(f'{size:.3g}{"*" if named else ""}'
                               for size, named in zip(limit.sizes, limit.named, strict=True))
             out.append(f'| {effect_title(effect)} | {value} | {tried} |')
