@@ -14,6 +14,7 @@ import pytest
 from exo_has_sim import model
 from exo_has_sim.diagnosis.cli import STRUCTURE_STATUS, main
 from exo_has_sim.diagnosis.compare import horizon_samples, make_windows
+from exo_has_sim.diagnosis.data import check_columns, read_csv
 from exo_has_sim.diagnosis.diagnose import load_plant
 from exo_has_sim.diagnosis.fitting import (
     Evaluation,
@@ -22,6 +23,7 @@ from exo_has_sim.diagnosis.fitting import (
     fit_parameters,
     output_weights,
 )
+from exo_has_sim.diagnosis.has_plant import HasPlant
 from exo_has_sim.diagnosis.structure import (
     fit_findings,
     flow_gains,
@@ -200,3 +202,40 @@ def test_a_parameter_at_its_bound_or_an_effect_the_data_do_not_bound_is_no_groun
     assert not found['interval:damping'].gating
     assert found['interval:coulomb_friction'].gating
     assert all(f.passed for check, f in found.items() if check.startswith('fit:'))
+
+
+def test_the_measured_motor_speed_as_input_judges_the_hydraulics_apart_from_a_limited_motor(
+        tmp_path):
+    limited = HIP.replace(circuit='switched', charge_pressure=0.5e6, brake_force=1100.0,
+                          load_mass=30.0, motor_inertia=2e-5, motor_torque_peak=0.6)
+    path = record(limited, tmp_path / 'limited.csv', seconds=8.0)
+    # The user's file knows the circuit and the brake, not the drive's torque limit.
+    unaware = load_plant(path, 'has', 'hip', 30.0).restructured('switched', False, 1100.0)
+    unaware.params = unaware.params.replace(motor_inertia=0.0)
+    assert not motor_shortfall(unaware).passed
+    apart = unaware.restructured('switched', True)
+    assert 'motor_speed' not in apart.outputs and 'transport_delay' not in apart.effects
+    assert motor_shortfall(apart) is None
+    judgement = baseline_of(apart)
+    assert judgement.described, [f.text for f in judgement.failed]
+
+
+def test_a_windows_unmeasured_load_is_held_to_what_the_cylinder_can_carry(tmp_path):
+    path = record(HIP.replace(load_mass=50.0), tmp_path / 'loaded.csv', load=900.0)
+    full = read_csv(path, 'has')
+    bare = check_columns({'time': full.time, 'motor_speed_command': full.input,
+                          'position': full.position}, 'has', 'position only')
+    free = HasPlant(bare, HIP, 50.0)
+    low, high = free.load_bounds()
+    assert low < 0.0 < 900.0 < high  # the record's load is within what the cylinder carries
+    # A cylinder whose relief valve opened at a quarter of the pressure the load needs can
+    # carry no such load: the windows' loads are held to its range, and the record is no
+    # longer predicted as well.
+    weak = HasPlant(bare, HIP.replace(relief_pressure=1.5e6, max_working_pressure=1.5e6), 50.0)
+    assert weak.load_bounds()[1] < 900.0
+    windows = make_windows(bare.samples, horizon_samples(0.5, bare.period), free.first_start,
+                           20)
+    weights = output_weights(free)
+    fits = [evaluate(plant, [plant.nominal()], windows.validation_span, weights)[0].fit(0)
+            for plant in (free, weak)]
+    assert fits[0] > 95.0 and fits[1] < fits[0] - 10.0
