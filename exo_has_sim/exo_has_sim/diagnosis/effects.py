@@ -187,9 +187,11 @@ def has_effect_parameters(effect: str, params: HasParameters,
         'pump_deadzone': (Parameter('pump_deadzone', 'rad/s', 0.02 * top, 0.05, 0.25 * top,
                                     'pump dead zone n_dz',
                                     grid=_geometric(0.005 * top, 0.15 * top)),),
+        # Eleven points, not six: a delay's fit has a basin at every few samples, and from
+        # the coarser grid's 2.1 ms a 6.4 ms delay's fit stopped at 2.5 ms.
         'transport_delay': (Parameter('transport_delay', 's', 0.005, 1e-5, 0.1,
                                       'command transport delay',
-                                      grid=_geometric(0.001, 0.04)),),
+                                      grid=_geometric(0.001, 0.04, 11)),),
         'quadratic_leakage': (Parameter('quadratic_leakage', 'm^3/(s Pa^2)', 5e-21, 1e-24,
                                         1e-17, 'quadratic pump leakage L_n2',
                                         grid=_geometric(3e-22, 1e-19, 7)),),
