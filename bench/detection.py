@@ -417,7 +417,8 @@ def twins(count: int, sensors: str, jobs: int) -> None:
 
 
 def stated_limits(count: int, plants: str, sensors: str, jobs: int,
-                  offsets: Sequence[int] = (0, 2)) -> None:
+                  offsets: Sequence[int] = (0, 2),
+                  effects: Sequence[str] | None = None) -> None:
     """Check each record's stated limits at the limit itself: whether they are named there.
 
     ``count`` effect-free draws of :data:`HIDDEN_DURATION` of the plants named (``'b'``,
@@ -437,8 +438,9 @@ def stated_limits(count: int, plants: str, sensors: str, jobs: int,
             for effect, limit in base['limits'].items():
                 ladder = base['ladders'][effect]
                 module = plant_c if base['plant'].startswith('c') else PLANTS[base['plant']]
-                if limit is None or limit not in ladder or effect not in module.EFFECTS:
-                    continue  # no limit, or an effect this plant cannot hide
+                if limit is None or limit not in ladder or effect not in module.EFFECTS \
+                        or (effects and effect not in effects):
+                    continue  # no limit, an effect this plant cannot hide, or not asked
                 i = ladder.index(limit)
                 tasks += [(base['plant'], base['seed'], effect, ladder[i + k], sensors, folder,
                            HIDDEN_DURATION) for k in offsets if i + k < len(ladder)]
@@ -460,7 +462,8 @@ def stated_limits(count: int, plants: str, sensors: str, jobs: int,
         lines.append(f'  {effect}: ' + ', '.join(
             f'{offset:+d}: {sum(v)}/{len(v)} ({sum(v) / len(v):.0%})'
             for offset, v in sorted(by_offset.items())))
-    write_results(f'detection_stated_limits_{plants}_{sensors}',
+    suffix = '' if list(offsets) == [0, 2] else '_' + '_'.join(f'{k:+d}' for k in offsets)
+    write_results(f'detection_stated_limits_{plants}_{sensors}{suffix}',
                   {'bases': bases, 'twins': results,
                    'table': {e: {str(k): v for k, v in t.items()} for e, t in table.items()}},
                   lines)
@@ -484,6 +487,10 @@ def main() -> None:
                       'itself, by twins (--plants)')
     parser.add_argument('--plants', default='b',
                         help='with --stated-limits: the plants taking turns (a, b, c)')
+    parser.add_argument('--offsets', type=int, nargs='+', default=[0, 2],
+                        help='with --stated-limits: ladder steps stronger than the limit')
+    parser.add_argument('--effects', nargs='+',
+                        help='with --stated-limits: only these effects (default all)')
     mode.add_argument('--third', type=int, metavar='N',
                       help='draws of the third plant (one-way pump, direction valves, '
                       'accumulator, braking load), the effects taking turns')
@@ -510,7 +517,8 @@ def main() -> None:
     elif args.third is not None:
         third_plant(args.third, args.circuit, args.sensors, args.jobs)
     elif args.stated_limits is not None:
-        stated_limits(args.stated_limits, args.plants, args.sensors, args.jobs)
+        stated_limits(args.stated_limits, args.plants, args.sensors, args.jobs, args.offsets,
+                      args.effects)
     else:
         detection_limits(args.draws, args.sensors, args.jobs)
 

@@ -378,7 +378,7 @@ def diagnose(plant: Plant, horizon: float = DEFAULT_HORIZON, burn_in: float = DE
         for why in transfer.unphysical():
             say(f'  not a physical model of the HAS: {why}')
     everything = evaluate(plant, [baseline.values], windows.span, weights)[0]
-    judgement = Judgement(tuple(evidence(plant, everything, windows.span)))
+    judgement = Judgement(tuple(evidence(plant, windows.span)))
     if not judgement.described:
         judgement = Judgement((*judgement.findings,
                                *fit_findings(plant, baseline, baseline_validation)))

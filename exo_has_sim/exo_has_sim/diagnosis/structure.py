@@ -47,6 +47,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from exo_has_sim.diagnosis.compare import Span, Windows
 from exo_has_sim.diagnosis.effects import seal_friction_limit
@@ -76,6 +77,8 @@ MOVING_SHARE = 0.15
 MIN_SAMPLES = 50
 #: Percentiles of a chamber's pressure where its loss in the flow gains' regression may bend.
 LOSS_KNOTS = (50.0, 75.0, 90.0)
+#: Time after the command last changed sign before a sample counts for the flow gains [s].
+SETTLE_TIME = 0.05
 #: Least rise [Pa] of the rod side above the charge pressure (95th percentile) that says it
 #: carries load, and the least share of the rodless side's 95th percentile.
 ROD_LOAD_PRESSURE = 1.0e6
@@ -279,11 +282,12 @@ class FlowGains:
 
 def flow_gains(velocity: FloatArray, speed: FloatArray,
                pressures: Sequence[tuple[FloatArray, FloatArray, Sequence[float]]],
-               area: float, displacement: float) -> FlowGains | None:
+               area: float, displacement: float,
+               mask: NDArray[np.bool_] | None = None) -> FlowGains | None:
     """Regress the rodless chamber's flow balance by direction (:class:`FlowGains`).
 
     ``pressures`` holds each known chamber pressure [Pa] with its rate [Pa/s], of the
-    velocity's shape, and the knots [Pa] of its loss.
+    velocity's shape, and the knots [Pa] of its loss; ``mask`` the samples that may count.
 
     Samples count where the pump turns (above :data:`MOVING_SHARE` of its 95th percentile),
     whichever way the cylinder then moves: keeping only those where it moves the pump's way
@@ -294,6 +298,8 @@ def flow_gains(velocity: FloatArray, speed: FloatArray,
     v, n = velocity.ravel(), speed.ravel()
     n_floor = MOVING_SHARE * float(np.percentile(np.abs(n), 95))
     use = np.abs(n) > n_floor
+    if mask is not None:
+        use &= mask.ravel()
     up, down = use & (n > 0.0), use & (n < 0.0)
     if np.count_nonzero(up) < MIN_SAMPLES or np.count_nonzero(down) < MIN_SAMPLES:
         return None
@@ -333,59 +339,67 @@ def pump_speed(plant: HasPlant) -> FloatArray:
     return plant.drive(0.0)[0]
 
 
-def direction_gain(plant: HasPlant, evaluation: Evaluation, span: Span) -> Finding | None:
-    """Compare the flow gains by direction of the record with the model's on the same record.
+def direction_gain(plant: HasPlant, span: Span) -> Finding | None:
+    """Compare the record's flow gains by direction with the ratio the model's circuit gives.
 
     :func:`flow_gains` on the measured motion (velocity and pressure rate smoothed from the
-    measured signals), against the ratio the model's structure gives: 1 for the paper's
-    pump, which fills and empties the rodless chamber both ways whatever the load; for the
-    closed and the switched circuits, whose ratio depends on which chamber the load presses,
-    the same regression on the model's own prediction over the windows (its velocity the
-    differences of its positions, its own pressures where it predicts them), with the same
-    pump speed (:func:`pump_speed`). A structure that routes the flow as the rig does gives
-    the same ratio as the data, whatever its flow gain's error, which scales both; a one-way
-    pump that feeds the rod side to retract, in a model that feeds the rodless side, gives
-    A_A/A_B against 1. (The paper's model's own regression is no yardstick: driven off the
-    rig it models, its prediction went as far as a ratio of 2.) None where a regression is
-    not possible.
+    measured signals) over the windows, with the pump speed of :func:`pump_speed` and the
+    samples :data:`SETTLE_TIME` after the command last changed sign (a valve switching, a
+    delay, a speed logged with the side of the command sent: each blurs which side the pump
+    feeds there). The circuit's own ratio follows from which chamber the pump feeds: 1 for
+    the paper's pump, which fills and empties the rodless chamber both ways whatever the
+    load; A_A/A_B for the switched circuit, which feeds the rod side to retract; for the
+    closed one, A_A/A_B where retracting presses the rod side (a load that resists both
+    ways), else 1. A structure that routes the flow as the rig does gives the data's ratio,
+    whatever its flow gain's error, which scales both directions alike. (A regression of the
+    model's own prediction is no yardstick: off the rig it models, and even on it beside a
+    hidden effect, it went from 0.4 to 2.) None where the regression is not possible, or the
+    closed circuit's loaded side cannot be told.
     """
     m = plant.measurement
     period = m.period
     index = span.scored()
     speed = pump_speed(plant)[index]
+    command = np.asarray(m.input, dtype=float)
+    turned = np.flatnonzero(np.diff(np.sign(command)) != 0) + 1
+    since = np.arange(len(command)) - np.maximum.accumulate(
+        np.where(np.isin(np.arange(len(command)), turned), np.arange(len(command)), 0))
+    settled = (since * period >= SETTLE_TIME)[index]
     area, displacement = plant.params.area_a, plant.params.pump_displacement
-    measured, predicted = [], []
+    measured = []
     for name in ('pressure_a', 'pressure_b'):
         if not m.has(name):
             continue
         pressure = smooth(m.optional[name], period)[index]
         knots = tuple(float(q) for q in np.percentile(pressure, LOSS_KNOTS))
         measured.append((pressure, smooth(m.optional[name], period, 1)[index], knots))
-        if name in plant.outputs:
-            own_p = evaluation.predicted[..., plant.outputs.index(name)]
-            predicted.append((own_p, np.gradient(own_p, period, axis=1), knots))
-        else:
-            predicted.append(measured[-1])
     data = flow_gains(smooth(m.position, period, 1)[index], speed, measured, area,
-                      displacement)
+                      displacement, settled)
     if data is None:
         return None
-    expected = 1.0
-    if plant.params.circuit in ('closed', 'switched'):
-        own = flow_gains(np.gradient(evaluation.predicted[..., 0], period, axis=1), speed,
-                         predicted, area, displacement)
-        if own is None:
+    areas = plant.params.area_a / plant.params.area_b
+    circuit = plant.params.circuit
+    expected, why = 1.0, "the paper's pump fills and empties the rodless chamber both ways"
+    if circuit == 'switched':
+        expected, why = areas, 'its one-way pump feeds the rod side to retract'
+    elif circuit == 'closed':
+        if not (m.has('pressure_a') and m.has('pressure_b')):
             return None
-        expected = own.ratio
+        back = (speed < 0.0) & settled
+        rod_loaded = float(np.median(m.optional['pressure_b'][index][back]
+                                     - m.optional['pressure_a'][index][back])) > 0.0 \
+            if np.any(back) else False
+        expected, why = (areas, 'retracting presses the rod side, which its pump feeds') \
+            if rod_loaded else (1.0, 'retracting presses the rodless side, which its pump '
+                                     'empties')
     value = data.ratio / expected
-    own_record = ' on the same record' if plant.params.circuit in ('closed', 'switched') else ''
     passed = 1.0 / DIRECTION_RATIO <= value <= DIRECTION_RATIO
     text = (f'flow gain by direction: per unit of pump flow the cylinder retracts '
             f'{data.ratio:.2f} times as fast as it extends (+-{1.96 * data.error:.1%}, '
-            f'{data.samples} samples), where the model{own_record} does {expected:.2f} times: '
-            f'a ratio of {value:.2f} (a right structure: within {DIRECTION_RATIO:g} of 1)')
-    areas = plant.params.area_a / plant.params.area_b
-    if not passed and abs(math.log(value / areas)) < abs(math.log(value)):
+            f"{data.samples} samples), where the model's circuit gives {expected:.2f} ({why}):"
+            f' a ratio of {value:.2f} (a right structure: within {DIRECTION_RATIO:g} of 1)')
+    if not passed and expected == 1.0 and abs(math.log(data.ratio / areas)) \
+            < abs(math.log(data.ratio)):
         text += (f'; A_A/A_B is {areas:.2f}: retracting, the pump feeds the rod side (a '
                  "valve-switched or closed circuit), where the model's circuit feeds the "
                  'rodless one')
@@ -562,21 +576,20 @@ def fit_findings(plant: Plant, fit: Fit, validation: Evaluation) -> list[Finding
     return out
 
 
-def evidence(plant: Plant, everything: Evaluation, span: Span) -> list[Finding]:
+def evidence(plant: Plant, span: Span) -> list[Finding]:
     """Gather the record's evidence of the circuit and the motor, whatever effect it holds.
 
-    ``everything`` is the baseline on every window ``span`` (for the flow gain by
-    direction). Empty for a plant other than the HAS.
+    ``span`` holds every window (for the flow gain by direction). Empty for a plant other
+    than the HAS.
     """
     if not isinstance(plant, HasPlant):
         return []
-    found = (direction_gain(plant, everything, span), rod_pressure(plant),
-             motor_shortfall(plant), resisting_load(plant))
+    found = (direction_gain(plant, span), rod_pressure(plant), motor_shortfall(plant),
+             resisting_load(plant))
     return [finding for finding in found if finding is not None]
 
 
-def judge(plant: Plant, fit: Fit, validation: Evaluation, everything: Evaluation,
-          span: Span) -> Judgement:
+def judge(plant: Plant, fit: Fit, validation: Evaluation, span: Span) -> Judgement:
     """Judge whether a fitted model's structure describes the record: both stages at once.
 
     Parameters
@@ -587,13 +600,11 @@ def judge(plant: Plant, fit: Fit, validation: Evaluation, everything: Evaluation
         The model's fit.
     validation : Evaluation
         It on the validation windows.
-    everything : Evaluation
-        It on every window ``span`` (for the flow gain by direction).
     span : Span
         Every window.
 
     """
-    return Judgement((*evidence(plant, everything, span),
+    return Judgement((*evidence(plant, span),
                       *fit_findings(plant, fit, validation)))
 
 
@@ -664,9 +675,8 @@ def try_structures(plant: HasPlant, judgement: Judgement, windows: Windows,
         except (FitError, DiagnosisError):
             continue
         validation = evaluate(other, [fit.values], windows.validation_span, weights)[0]
-        everything = evaluate(other, [fit.values], windows.span, weights)[0]
         fits = {output: validation.fit(k) for k, output in enumerate(other.outputs)}
-        own = judge(other, fit, validation, everything, windows.span)
+        own = judge(other, fit, validation, windows.span)
         alternatives.append(Alternative(name, title, fits, _error(fits, plant.outputs),
                                         {p.name: fit.values[p.name] for p in fit.free},
                                         own.findings))
