@@ -285,6 +285,18 @@ def _spread(values: Sequence[float | None]) -> str:
             f'({len(found)} of {len(values)})' if found else 'none')
 
 
+def _outcome_line(r: dict[str, Any]) -> str:
+    """Say a draw's excitation, hidden effect, outcome, what was named and what failed."""
+    sizes = ', '.join(f'{k} {v:.3g}' for k, v in r['sizes'].items())
+    error = (f' ({r["sizes"][r["effect"]] / r["size"] - 1.0:+.1%})'
+             if r['effect'] in r['sizes'] else '')
+    return (f'{r["excitation"]} {r["effect"]} {r["size"]:.3g}: {r["outcome"]}; named '
+            f'{sizes or "none"}{error}'
+            + (f'; beside: {", ".join(r["indistinguishable"])}' if r['indistinguishable']
+               else '')
+            + ''.join(f'; {f["check"]} {f["value"]:.3g}' for f in r['structure_failed']))
+
+
 def _outcome(row: dict[str, Any]) -> str:
     """Say what a diagnosis made of its draw's hidden effect (or of its absence)."""
     if row['verdict'] == 'structure':
@@ -319,17 +331,7 @@ def hidden_draws(sensors: str, jobs: int) -> None:
              f'{len(results)} draws of {HIDDEN_DURATION:g} s; wall per diagnosis median '
              f'{float(np.median([r["wall_s"] for r in results])):.1f} s',
              *(f'  {key}: {len(rows)}' for key, rows in outcomes.items())]
-    for r in results:
-        sizes = ', '.join(f'{k} {v:.3g}' for k, v in r['sizes'].items())
-        error = (f' ({r["sizes"][r["effect"]] / r["size"] - 1.0:+.1%})'
-                 if r['effect'] in r['sizes'] else '')
-        lines.append(f'  {r["plant"]} {r["seed"]} {r["joint"]} {r["excitation"]} '
-                     f'{r["effect"]} {r["size"]:.3g}: {r["outcome"]}; named '
-                     f'{sizes or "none"}{error}'
-                     + (f'; beside: {", ".join(r["indistinguishable"])}'
-                        if r['indistinguishable'] else '')
-                     + ''.join(f'; {f["check"]} {f["value"]:.3g}'
-                               for f in r['structure_failed']))
+    lines += [f'  {r["plant"]} {r["seed"]} {r["joint"]} {_outcome_line(r)}' for r in results]
     write_results(f'detection_hidden_{_tag(sensors)}', {'draws': results}, lines)
 
 
@@ -359,19 +361,11 @@ def third_plant(count: int, circuit: str, sensors: str, jobs: int) -> None:
              *(f'  {key}: {value}' for key, value in counts.items()),
              'flow gain by direction, data over model: '
              + _spread([r['direction_gain'] for r in results])]
-    for r in results:
-        sizes = ', '.join(f'{k} {v:.3g}' for k, v in r['sizes'].items())
-        error = (f' ({r["sizes"][r["effect"]] / r["size"] - 1.0:+.1%})'
-                 if r['effect'] in r['sizes'] else '')
-        lines.append(f'  {r["seed"]} {r["excitation"]} {r["effect"]} {r["size"]:.3g}: '
-                     f'{r["outcome"]}; named {sizes or "none"}{error}'
-                     + (f'; beside: {", ".join(r["indistinguishable"])}'
-                        if r['indistinguishable'] else '')
-                     + ''.join(f'; {f["check"]} {f["value"]:.3g}'
-                               for f in r['structure_failed'])
-                     + (f'; unidentifiable: {", ".join(r["unidentifiable"])}'
-                        if r['unidentifiable'] else '')
-                     + (f'; suggested {r["suggestion"]}' if r.get('suggestion') else ''))
+    lines += [f'  {r["seed"]} {_outcome_line(r)}'
+              + (f'; unidentifiable: {", ".join(r["unidentifiable"])}'
+                 if r['unidentifiable'] else '')
+              + (f'; suggested {r["suggestion"]}' if r.get('suggestion') else '')
+              for r in results]
     write_results(f'detection_third_{circuit}_{sensors}', {'draws': results}, lines)
 
 

@@ -91,3 +91,19 @@ def test_a_size_the_record_refused_and_every_weaker_one_count_as_not_named():
     assert refused_at(crack, 11e6).named == (False, False, True)
     never = refused_at(stated, 0.05)
     assert never.limit is None and 'not named even at 0.04 s' in never.sentence()
+
+
+def test_a_limit_is_stated_its_calibrated_margin_stronger_or_not_at_all():
+    from exo_has_sim.diagnosis.limits import _limits_of, margin_of
+
+    sizes, named = (1.0, 2.0, 4.0, 8.0, 16.0), (False, True, True, True, True)
+    assert _limits_of(sizes, named, 2) == (8.0, 2.0)
+    assert _limits_of(sizes, named, 0) == (2.0, 2.0)
+    assert _limits_of(sizes, (False, False, False, True, True), 2) == (None, 8.0)  # past it
+    assert _limits_of(sizes, named, None) == (None, 2.0)
+    assert margin_of('coulomb_friction', 'rodless') == 2
+    assert margin_of('transport_delay', 'either') is None  # not held on the third plant
+    assert margin_of('coulomb_friction', 'mass') is None
+    quiet = DetectionLimit('entrained_air', '-', sizes, named, None, projected=2.0, margin=None)
+    assert not quiet.stated and 'no limit is stated' in quiet.sentence()
+    assert quiet.to_json()['stated'] is False

@@ -169,6 +169,14 @@ class Plant(ABC):
         """Parameters of the baseline that are re-estimated (the hard-to-know ones)."""
 
     @property
+    def limit_kind(self) -> str:
+        """The kind of plant whose calibrated margins its detection limits take.
+
+        :data:`exo_has_sim.diagnosis.limits.LIMIT_MARGIN`; the generic plant's own kind.
+        """
+        return self.kind
+
+    @property
     def alternatives(self) -> dict[str, tuple[Parameter, ...]]:
         """Other structures of the baseline, which the data may call for, and what each adds.
 
