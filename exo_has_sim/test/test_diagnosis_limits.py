@@ -63,13 +63,13 @@ def test_the_limit_is_the_weakest_size_from_which_every_stronger_one_is_named():
     limit = DetectionLimit('coulomb_friction', 'N', (1.0, 2.0, 4.0, 8.0),
                            (True, False, True, True), 4.0, projected=4.0)
     assert not limit.below_range
-    assert 'under about 4 N cannot be told from noise' in limit.sentence()
+    assert 'under about 4 N may go unnamed in these data' in limit.sentence()
     assert limit.to_json() == {'limit': 4.0, 'unit': 'N', 'below_range': False,
                                'sizes': [1.0, 2.0, 4.0, 8.0],
                                'named': [True, False, True, True], 'refused': None,
                                'projected': 4.0, 'stated': True}
     crack = DetectionLimit('relief_valve', 'Pa', (13e6, 11e6), (False, True), 11e6)
-    assert 'above about 1.1e+07 Pa cannot be told' in crack.sentence()
+    assert 'above about 1.1e+07 Pa may go unnamed' in crack.sentence()
     never = DetectionLimit('transport_delay', 's', (0.001, 0.04), (False, False), None)
     assert 'not named even at 0.04 s' in never.sentence()
     always = DetectionLimit('pump_deadzone', 'rad/s', (2.0, 4.0), (True, True), 2.0)
@@ -84,7 +84,7 @@ def test_a_size_the_record_refused_and_every_weaker_one_count_as_not_named():
     refused = refused_at(stated, 0.0109)
     assert refused.named == (False, False, True, True) and refused.limit == 0.0145
     assert refused.to_json()['refused'] == 0.0109
-    assert ('under about 0.0145 s cannot be told' in refused.sentence()
+    assert ('under about 0.0145 s may go unnamed' in refused.sentence()
             and 'fitted here at 0.0109 s, it did no better' in refused.sentence())
     assert refused_at(refused, 0.003) == refused  # a weaker refusal changes nothing
     crack = DetectionLimit('relief_valve', 'Pa', (13e6, 11e6, 9e6), (True, True, True), 13e6)

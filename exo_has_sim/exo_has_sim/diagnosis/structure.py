@@ -49,6 +49,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from exo_has_sim import model
 from exo_has_sim.diagnosis.compare import Span, Windows
 from exo_has_sim.diagnosis.effects import seal_friction_limit
 from exo_has_sim.diagnosis.fitting import (
@@ -64,15 +65,15 @@ from exo_has_sim.diagnosis.has_plant import HasPlant
 from exo_has_sim.diagnosis.plants import Plant, smooth
 from exo_has_sim.errors import DiagnosisError, FitError
 
-#: Least validated fit [%] of each output under the baseline for the structure to count as
-#: describing the record.
+#: Least validated fit [%] of each output, under the model the verdict rests on, for the
+#: structure to count as describing the record.
 FIT_THRESHOLDS = {'position': 80.0, 'pressure_a': 40.0, 'pressure_b': 20.0,
                   'motor_speed': 50.0}
-#: Largest ratio of the flow gains by direction (measured over predicted velocity, retracting
-#: over extending, or its inverse) a right structure leaves.
+#: Largest ratio (or its inverse) of the record's flow gains by direction, retracting over
+#: extending, to the circuit's own that a right structure leaves.
 DIRECTION_RATIO = 1.2
-#: Share of the measured motion's 95th percentile below which a sample's velocity is not used
-#: for the flow gain (at rest, the ratio of two small velocities is noise).
+#: Share of the pump speed's 95th percentile below which a sample does not count for the flow
+#: gains (a pump that barely turns says little of its gain).
 MOVING_SHARE = 0.15
 #: Fewest samples each direction needs for the flow gain to be judged.
 MIN_SAMPLES = 50
@@ -80,7 +81,6 @@ MIN_SAMPLES = 50
 LOSS_KNOTS = (50.0, 75.0, 90.0)
 #: Time after the command last changed sign before a sample counts for the flow gains [s].
 SETTLE_TIME = 0.05
-ATMOSPHERE = 101325.0  # Pa
 #: Least rise [Pa] of the rod side above the charge pressure (95th percentile) that says it
 #: carries load, and the least share of the rodless side's 95th percentile.
 ROD_LOAD_PRESSURE = 1.0e6
@@ -313,7 +313,8 @@ def flow_gains(velocity: FloatArray, speed: FloatArray,
                up.astype(float), -down.astype(float)]
     for pressure, rate, knots in pressures:
         p = pressure.ravel()
-        columns += [-p, -rate.ravel(), -rate.ravel() / (np.maximum(p, 0.0) + ATMOSPHERE),
+        columns += [-p, -rate.ravel(),
+                    -rate.ravel() / (np.maximum(p, 0.0) + model.ATMOSPHERIC_PRESSURE),
                     *(-np.maximum(p - knot, 0.0) for knot in knots)]
     design = np.column_stack(columns)[use]
     target = area * v[use]
