@@ -79,7 +79,13 @@ from exo_has_sim.diagnosis.selection import (
     hidden_rivals,
     rivals,
 )
-from exo_has_sim.diagnosis.structure import Judgement, evidence, fit_findings, try_structures
+from exo_has_sim.diagnosis.structure import (
+    Judgement,
+    evidence,
+    fit_findings,
+    settle_ambiguous,
+    try_structures,
+)
 from exo_has_sim.diagnosis.transfer import ThirdOrderModel, identify_third_order
 from exo_has_sim.errors import DiagnosisError, FitError, MeasurementError
 from exo_has_sim.parameters import load_parameters
@@ -378,10 +384,14 @@ def diagnose(plant: Plant, horizon: float = DEFAULT_HORIZON, burn_in: float = DE
         for why in transfer.unphysical():
             say(f'  not a physical model of the HAS: {why}')
     everything = evaluate(plant, [baseline.values], windows.span, weights)[0]
-    judgement = Judgement(tuple(evidence(plant, windows.span)))
+    judgement = settle_ambiguous(
+        plant, Judgement(tuple(evidence(plant, windows.span))),
+        {output: baseline_validation.fit(k) for k, output in enumerate(plant.outputs)},
+        windows, progress)
     if not judgement.described:
         judgement = Judgement((*judgement.findings,
-                               *fit_findings(plant, baseline, baseline_validation)))
+                               *fit_findings(plant, baseline, baseline_validation)),
+                              judgement.alternatives)
         return _structure_verdict(plant, windows, weights, nominal, baseline,
                                   baseline_validation, everything, transfer, transfer_fit,
                                   unidentifiable, judgement, started, progress)
@@ -456,7 +466,7 @@ def _structure_verdict(plant: Plant, windows: Windows, weights: FloatArray,
     say = progress or (lambda _text: None)
     for finding in judgement.failed:
         say(f'structure: {finding.text}')
-    if isinstance(plant, HasPlant):
+    if isinstance(plant, HasPlant) and not judgement.alternatives:
         say('trying the structures the plant can take instead')
         judgement = try_structures(plant, judgement, windows, progress)
     say("the model's structure does not describe these data: no effect is named")
