@@ -15,9 +15,10 @@ would, with a parameters file written from the rig's datasheet (``third_rig.py``
   uncertainty): the structure describes every record, nothing is named that is not there,
   the sizes named are within 25 %, a seal's friction is reported as not identifiable beside
   the brake whose force is fitted, and where an effect is missed the record's own detection
-  limit does not claim it would have been named. The draws are the first seven of
-  ``bench/detection.py --third 14`` (results/detection_third_switched_full.txt), whose brakes
-  are held where the torque-limited motor keeps up (``third_rig.HELD_BRAKES``).
+  limit does not claim it would have been named, and a limit is stated only for the effect
+  whose margin was measured on this plant (the relief valve). The draws are four of the
+  first seven of ``bench/detection.py --third 14`` (results/detection_third_switched_full.txt),
+  whose brakes are held where the torque-limited motor keeps up (``third_rig.HELD_BRAKES``).
 """
 
 from __future__ import annotations
@@ -36,11 +37,18 @@ from exo_has_sim.diagnosis.cli import STRUCTURE_STATUS, main
 LOGGED = third_rig.LOGGED
 POSITION_ONLY = ('time', 'motor_speed_command', 'position', 'reference')
 #: Draws described with the paper's circuit: seed, effect, columns.
-PAPER_CIRCUIT_DRAWS = ((9100, 'none', LOGGED), (9101, 'coulomb_friction', LOGGED),
-                       (9102, 'quadratic_leakage', LOGGED), (9103, 'none', POSITION_ONLY))
-#: Draws described with the rig's own circuit: the effects take turns (none first).
-RIGHT_CIRCUIT_DRAWS = tuple((95000 + i, effect, LOGGED)
-                            for i, effect in enumerate(rig.EFFECT_CHOICES))
+PAPER_CIRCUIT_DRAWS = ((9103, 'none', POSITION_ONLY), (9102, 'quadratic_leakage', LOGGED),
+                       (9100, 'none', LOGGED))
+#: Draws described with the rig's own circuit, seeds of bench/detection.py --third (where
+#: the effects take turns, none first): no effect, a seal's friction beside the brake, a
+#: quadratic leakage and a relief valve, the one effect whose limit is stated on this circuit
+#: (the bench's other three draws of its first seven, a dead zone, a delay and entrained air,
+#: are missed there with no limit stated, and took 2 of this test's 4 minutes).
+RIGHT_CIRCUIT_DRAWS = ((95005, 'relief_valve', LOGGED), (95004, 'quadratic_leakage', LOGGED),
+                       (95000, 'none', LOGGED), (95001, 'coulomb_friction', LOGGED))
+#: The effects whose detection limit is stated where the pump feeds either chamber
+#: (exo_has_sim.diagnosis.limits.LIMIT_MARGIN['either']).
+STATED_ON_THIS_CIRCUIT = {'relief_valve'}
 SIZE_TOLERANCE = 0.25
 
 
@@ -152,8 +160,11 @@ def test_a_seals_friction_is_not_identifiable_beside_the_brake_whose_force_is_fi
         assert 'brake' in doc['unidentifiable']['coulomb_friction']
 
 
-def test_where_an_effect_is_missed_the_records_own_limit_does_not_claim_it(right_circuit):
+def test_a_limit_is_stated_only_where_it_was_measured_and_never_claims_a_missed_effect(
+        right_circuit):
     for draw, _, doc in right_circuit:
+        stated = {e for e, limit in doc['detection_limits'].items() if limit['limit'] is not None}
+        assert stated <= STATED_ON_THIS_CIRCUIT, (draw.seed, stated)
         if draw.effect == 'none' or draw.effect in doc['causes'] \
                 or draw.effect in doc['unidentifiable']:
             continue
