@@ -60,6 +60,7 @@ from common import describe_machine, write_results
 
 from exo_has_sim.diagnosis.cli import STRUCTURE_STATUS
 from exo_has_sim.diagnosis.cli import main as diagnose_main
+from exo_has_sim.parameters import load_parameters
 
 DURATION = 30.0  # s
 LOAD_MASS = 50.0  # kg, both plants' default
@@ -71,6 +72,10 @@ FIRST_LIMIT_SEED = 80000
 FIRST_TWIN_SEED = 90000
 FIRST_THIRD_SEED = 95000
 FIRST_LIMIT_CHECK_SEED = 97000
+FIRST_LOW_RELIEF_SEED = 98000
+#: With --low-relief: the crack pressures, as shares of the parameters file's relief setting
+#: (18 MPa), spread evenly over the draws: the hold-out plant's missed valve cracked at 23 %.
+LOW_RELIEF_SHARES = (0.2, 0.3)
 #: Environment variable that passes --constant-load to the diagnoses.
 CONSTANT_LOAD = 'EXO_HAS_BENCH_CONSTANT_LOAD'
 #: The hidden-effect test's draws (test/test_hidden_effects.py): plant, draws, first seed;
@@ -312,6 +317,33 @@ def _outcome(row: dict[str, Any]) -> str:
     return 'another cause'
 
 
+def low_relief(count: int, sensors: str, jobs: int) -> None:
+    """Diagnose second-plant draws whose relief valve cracks far below its setting.
+
+    ``count`` draws, the crack pressures spread over :data:`LOW_RELIEF_SHARES` of the
+    parameters file's setting; the share of them that name the valve.
+    """
+    setting = float(load_parameters('hip').relief_pressure)
+    low, high = LOW_RELIEF_SHARES
+    shares = np.linspace(low, high, count) if count > 1 else np.array([low])
+    with tempfile.TemporaryDirectory() as folder:
+        tasks = [('b', FIRST_LOW_RELIEF_SEED + i, 'relief_valve', float(share * setting),
+                  sensors, folder, HIDDEN_DURATION) for i, share in enumerate(shares)]
+        results = run_tasks(tasks, jobs)
+    results.sort(key=lambda r: r['seed'])
+    for r in results:
+        r['outcome'] = _outcome(r)
+    named = sum(r['outcome'] == 'right' for r in results)
+    lines = [f'bench/detection.py --low-relief {count} --sensors {_tag(sensors)}: '
+             f'{describe_machine()}',
+             f'{len(results)} draws of the second plant, {HIDDEN_DURATION:g} s, a relief valve '
+             f'cracking at {low:.0%} to {high:.0%} of its {setting / 1e6:g} MPa setting: named '
+             f'{named} of {len(results)} ({named / max(len(results), 1):.0%}); wall per '
+             f'diagnosis median {float(np.median([r["wall_s"] for r in results])):.1f} s']
+    lines += [f'  {r["plant"]} {r["seed"]} {r["joint"]} {_outcome_line(r)}' for r in results]
+    write_results(f'detection_low_relief_{_tag(sensors)}', {'draws': results}, lines)
+
+
 def hidden_draws(sensors: str, jobs: int) -> None:
     """Diagnose the hidden-effect test's draws (test/test_hidden_effects.py) with ``sensors``."""
     with tempfile.TemporaryDirectory() as folder:
@@ -485,6 +517,9 @@ def main() -> None:
                         help='with --stated-limits: ladder steps stronger than the limit')
     parser.add_argument('--effects', nargs='+',
                         help='with --stated-limits: only these effects (default all)')
+    mode.add_argument('--low-relief', type=int, metavar='N',
+                      help='draws of the second plant with a relief valve cracking at 20-30 %% '
+                      'of its setting')
     mode.add_argument('--third', type=int, metavar='N',
                       help='draws of the third plant (one-way pump, direction valves, '
                       'accumulator, braking load), the effects taking turns')
@@ -508,6 +543,8 @@ def main() -> None:
         twins(args.twins, args.sensors, args.jobs)
     elif args.hidden:
         hidden_draws(args.sensors, args.jobs)
+    elif args.low_relief is not None:
+        low_relief(args.low_relief, args.sensors, args.jobs)
     elif args.third is not None:
         third_plant(args.third, args.circuit, args.sensors, args.jobs)
     elif args.stated_limits is not None:

@@ -7,6 +7,7 @@ from the model.
 
 import csv
 import json
+import math
 
 import numpy as np
 import pytest
@@ -24,6 +25,7 @@ from exo_has_sim.diagnosis.fitting import (
     output_weights,
 )
 from exo_has_sim.diagnosis.has_plant import HasPlant
+from exo_has_sim.diagnosis.plants import Parameter
 from exo_has_sim.diagnosis.structure import (
     fit_findings,
     flow_gains,
@@ -185,10 +187,16 @@ def test_a_parameter_at_its_bound_or_an_effect_the_data_do_not_bound_is_no_groun
     plant = load_plant(switched_log, 'has', 'hip', 30.0)
     modulus, damping = plant.baseline[0], plant.baseline[2]
     friction = plant.effect_parameters('coulomb_friction')[0]
-    fit = Fit({modulus.name: modulus.upper, damping.name: damping.lower, friction.name: 50.0},
-              (modulus, damping, friction),
+    # A linear parameter whose interval is finite but spans thousands of its scales once
+    # overflowed the width's exponential (a structure tried on a position-only record of
+    # the second truth plant, seed 6006).
+    offset = Parameter('charge_pressure', 'Pa', 0.2e6, -0.05e6, 2e6, 'charge line',
+                       scale=0.1e6)
+    fit = Fit({modulus.name: modulus.upper, damping.name: damping.lower, friction.name: 50.0,
+               offset.name: 0.2e6},
+              (modulus, damping, friction, offset),
               {modulus.name: (1e9, 2e9), damping.name: (1e-30, 1e30),
-               friction.name: (1e-20, 1e20)},
+               friction.name: (1e-20, 1e20), offset.name: (-3.5e8, 3.5e8)},
               at_bound=(modulus.name, damping.name))
     measured = np.ones((3, 10, len(plant.outputs))) * np.arange(10)[None, :, None]
     validation = Evaluation(measured, measured, np.ones(len(plant.outputs)))
@@ -200,6 +208,7 @@ def test_a_parameter_at_its_bound_or_an_effect_the_data_do_not_bound_is_no_groun
     # A baseline parameter the data do not determine is reported; an effect's size gates.
     assert not found['interval:damping'].gating
     assert found['interval:coulomb_friction'].gating
+    assert found['interval:charge_pressure'].value == math.inf
     assert all(f.passed for check, f in found.items() if check.startswith('fit:'))
 
 

@@ -581,8 +581,9 @@ def fit_findings(plant: Plant, fit: Fit, validation: Evaluation) -> list[Finding
         if parameter.log:
             width = high / low if low > 0.0 and math.isfinite(high) else math.inf
         else:
-            scale = parameter.scale or 1.0
-            width = math.exp((high - low) / scale) if math.isfinite(high - low) else math.inf
+            # In log space: an interval wide but finite (7e3 scales) overflowed exp.
+            spread = (high - low) / (parameter.scale or 1.0)
+            width = math.exp(spread) if spread < math.log(INTERVAL_FACTOR) + 1.0 else math.inf
         if not width <= INTERVAL_FACTOR:
             out.append(Finding(f'interval:{parameter.name}', False, width, INTERVAL_FACTOR,
                                f'{parameter.name}: 95 % interval {low:.3g} to {high:.3g} '
