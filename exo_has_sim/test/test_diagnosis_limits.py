@@ -104,6 +104,7 @@ def test_a_limit_is_stated_its_calibrated_margin_stronger_or_not_at_all():
     assert margin_of('coulomb_friction', 'rodless') == 2
     assert margin_of('transport_delay', 'either') is None  # not held on the third plant
     assert margin_of('coulomb_friction', 'mass') is None
+    assert margin_of('transport_delay', 'no_pressure') is None  # not measured from position
     quiet = DetectionLimit('entrained_air', '-', sizes, named, None, projected=2.0, margin=None)
     assert not quiet.stated and 'no limit is stated' in quiet.sentence()
     assert quiet.to_json()['stated'] is False

@@ -325,8 +325,11 @@ class HasPlant(Plant):
         """``'rodless'`` where the pump feeds the rodless chamber alone, else ``'either'``.
 
         The detection limits' margins were measured on a truth plant of each kind
-        (:data:`exo_has_sim.diagnosis.limits.LIMIT_MARGIN`).
+        (:data:`exo_has_sim.diagnosis.limits.LIMIT_MARGIN`), from records with the rodless
+        pressure: without it, ``'no_pressure'``.
         """
+        if not self.measurement.has('pressure_a'):
+            return 'no_pressure'
         return 'rodless' if self.params.circuit in ('paper', 'two_chamber') else 'either'
 
     @property

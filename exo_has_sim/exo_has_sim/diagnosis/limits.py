@@ -70,6 +70,10 @@ LIMIT_MARGIN: dict[str, dict[str, int | None]] = {
     'rodless': {'coulomb_friction': 2, 'pump_deadzone': 2, 'transport_delay': 2,
                 'relief_valve': 2, 'entrained_air': 2},
     'either': {'relief_valve': 2},
+    # Not measured without the rodless pressure, and the full logs' margins do not carry
+    # over: from command and position an 11 ms delay went unnamed under a stated 5.3 ms (the
+    # first truth plant's 5010, 2026-11-27).
+    'no_pressure': {},
     'mass': {},
 }
 
