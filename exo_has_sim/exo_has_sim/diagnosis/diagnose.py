@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -74,6 +74,7 @@ from exo_has_sim.diagnosis.residuals import (
 )
 from exo_has_sim.diagnosis.selection import (
     REFERENCE_TOLERANCE,
+    Progress,
     Score,
     forward_selection,
     hidden_rivals,
@@ -94,7 +95,6 @@ from exo_has_sim.parameters import load_parameters
 #: imperfect initial state (velocity from a noisy position) decays by e^-2 in 0.1 s.
 DEFAULT_BURN_IN = 0.1
 
-Progress = Callable[[str], None]
 #: The exoskeleton's joints (as exo_has_runtime.topics.JOINT_NAMES, without importing it).
 JOINT_NAMES = ('left_hip', 'left_knee', 'right_hip', 'right_knee')
 

@@ -42,7 +42,7 @@ first").
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -63,6 +63,7 @@ from exo_has_sim.diagnosis.fitting import (
 )
 from exo_has_sim.diagnosis.has_plant import HasPlant
 from exo_has_sim.diagnosis.plants import Plant, smooth
+from exo_has_sim.diagnosis.selection import Progress
 from exo_has_sim.errors import DiagnosisError, FitError
 
 #: Least validated fit [%] of each output, under the model the verdict rests on, for the
@@ -107,8 +108,6 @@ FAR_SIGMAS = 4.0
 #: better either (1.93 times the error); the valve-switched rig's 1.64
 #: (the third plant's 9103, position only) is predicted by its own circuit with 0.14 times it.
 AMBIGUOUS_GAIN = 0.5
-
-Progress = Callable[[str], None]
 
 
 @dataclass(frozen=True)
@@ -583,7 +582,8 @@ def fit_findings(plant: Plant, fit: Fit, validation: Evaluation) -> list[Finding
         if parameter.log:
             width = high / low if low > 0.0 and math.isfinite(high) else math.inf
         else:
-            # In log space: an interval wide but finite (7e3 scales) overflowed exp.
+            # Compared before the exponential: a finite interval thousands of scales wide
+            # overflowed it.
             spread = (high - low) / (parameter.scale or 1.0)
             width = math.exp(spread) if spread < math.log(INTERVAL_FACTOR) + 1.0 else math.inf
         if not width <= INTERVAL_FACTOR:
