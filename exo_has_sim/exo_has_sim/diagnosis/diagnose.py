@@ -384,10 +384,8 @@ def diagnose(plant: Plant, horizon: float = DEFAULT_HORIZON, burn_in: float = DE
         for why in transfer.unphysical():
             say(f'  not a physical model of the HAS: {why}')
     everything = evaluate(plant, [baseline.values], windows.span, weights)[0]
-    judgement = settle_ambiguous(
-        plant, Judgement(tuple(evidence(plant, windows.span))),
-        {output: baseline_validation.fit(k) for k, output in enumerate(plant.outputs)},
-        windows, progress)
+    judgement = settle_ambiguous(plant, Judgement(tuple(evidence(plant, windows.span))),
+                                 baseline_validation, windows, progress)
     if not judgement.described:
         judgement = Judgement((*judgement.findings,
                                *fit_findings(plant, baseline, baseline_validation)),

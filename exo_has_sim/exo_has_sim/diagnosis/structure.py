@@ -380,10 +380,11 @@ def direction_gain(plant: HasPlant, span: Span) -> Finding | None:
     index = span.scored()
     speed = pump_speed(plant)[index]
     command = np.asarray(m.input, dtype=float)
+    samples = np.arange(len(command))
+    last_turn = np.zeros(len(command), dtype=int)  # the sample where the sign last changed
     turned = np.flatnonzero(np.diff(np.sign(command)) != 0) + 1
-    since = np.arange(len(command)) - np.maximum.accumulate(
-        np.where(np.isin(np.arange(len(command)), turned), np.arange(len(command)), 0))
-    settled = (since * period >= SETTLE_TIME)[index]
+    last_turn[turned] = turned
+    settled = ((samples - np.maximum.accumulate(last_turn)) * period >= SETTLE_TIME)[index]
     if m.has('motor_speed'):
         # Where the motor falls short of its command (a torque limit against the load) the
         # pump's flow and the motion part for a reason of the motor's, not the circuit's.
@@ -636,7 +637,12 @@ def judge(plant: Plant, fit: Fit, validation: Evaluation, span: Span) -> Judgeme
                       *fit_findings(plant, fit, validation)))
 
 
-def settle_ambiguous(plant: Plant, judgement: Judgement, fits: dict[str, float],
+def output_fits(plant: Plant, evaluation: Evaluation) -> dict[str, float]:
+    """Return the validated fit [%] of each of the plant's outputs in an evaluation."""
+    return {output: evaluation.fit(k) for k, output in enumerate(plant.outputs)}
+
+
+def settle_ambiguous(plant: Plant, judgement: Judgement, validation: Evaluation,
                      windows: Windows, progress: Progress | None = None) -> Judgement:
     """Decide a flow gain by direction that is the only evidence against the structure.
 
@@ -645,15 +651,15 @@ def settle_ambiguous(plant: Plant, judgement: Judgement, fits: dict[str, float],
     cannot take it out, and with one it takes out most, not all, of a relief valve cracked
     far below its setting. Where that finding is the only one the structure fails, the
     plant's other structures are fitted (:func:`try_structures`): the verdict stands if one
-    describes the record with at most :data:`AMBIGUOUS_GAIN` of the model's error (``fits``:
-    the model's validated fit [%] by output), and the finding is reported only otherwise,
+    describes the record with at most :data:`AMBIGUOUS_GAIN` of the model's error (from its
+    ``validation``), and the finding is reported only otherwise,
     saying why, for the effects to be searched. Any other judgement is returned as it is.
     """
     failed = judgement.failed
     if not isinstance(plant, HasPlant) or [f.check for f in failed] != ['direction_gain']:
         return judgement
     tried = try_structures(plant, judgement, windows, progress)
-    best, own = tried.suggestion, _error(fits, plant.outputs)
+    best, own = tried.suggestion, _error(output_fits(plant, validation), plant.outputs)
     if best is not None and best.error <= AMBIGUOUS_GAIN * own:
         return tried
     best_share = (f'the best {min(a.error for a in tried.alternatives) / own:.2f}'
@@ -740,7 +746,7 @@ def try_structures(plant: HasPlant, judgement: Judgement, windows: Windows,
         except (FitError, DiagnosisError):
             continue
         validation = evaluate(other, [fit.values], windows.validation_span, weights)[0]
-        fits = {output: validation.fit(k) for k, output in enumerate(other.outputs)}
+        fits = output_fits(other, validation)
         own = judge(other, fit, validation, windows.span)
         alternatives.append(Alternative(name, title, fits, _error(fits, plant.outputs),
                                         {p.name: fit.values[p.name] for p in fit.free},
