@@ -153,7 +153,9 @@ def diagnose_draw(task: Task) -> dict[str, Any]:
                                  if f['gating'] and not f['passed']],
             'direction_gain': next((f['value'] for f in judged.get('findings', [])
                                     if f['check'] == 'direction_gain'), None),
-            'suggestion': judged.get('suggestion'),
+            'suggestion': judged.get('suggestion'), 'alike': judged.get('alike', []),
+            'model_error': _error(doc.get('fits', {}).get('baseline', {})),
+            'alternatives': {a['name']: a['error'] for a in judged.get('alternatives', [])},
             'fits': doc.get('fits', {}).get('extended', {}),
             'causes': doc.get('causes', []),
             'sizes': doc.get('sizes', {}), 'indistinguishable': doc.get('indistinguishable', []),
@@ -167,6 +169,14 @@ def diagnose_draw(task: Task) -> dict[str, Any]:
                                                        'p_value', 'significant')}
                         for step in doc.get('steps', []) if step],
             'wall_s': round(wall, 1)}
+
+
+def _error(fits: dict[str, float]) -> float | None:
+    """Return the normalised error of validated fits [%], as structures are ranked by it."""
+    if not fits:
+        return None
+    return float(np.exp(np.mean([np.log(max(1.0 - fit / 100.0, 1e-6))
+                                 for fit in fits.values()])))
 
 
 def run_tasks(tasks: Sequence[Task],

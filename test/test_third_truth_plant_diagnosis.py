@@ -9,8 +9,10 @@ excitation, noise and hidden effect from its seed, and is diagnosed by the comma
 would, with a parameters file written from the rig's datasheet (``third_rig.py``).
 
 - Described with the paper's circuit (the project's model, the rig's own values): every record
-  gets the verdict that the model's structure does not describe the data, naming the flow gain
-  that differs by direction by about A_A/A_B, with exit status 3, and no effect is named.
+  logged with its pressures gets the verdict that the model's structure does not describe the
+  data, naming the flow gain that differs by direction by about A_A/A_B, with exit status 3;
+  from the position alone the flow gain is named too, and decides only where no effect that
+  the position cannot identify explains it; no effect is named.
 - Described with its own circuit (``circuit: switched``, the brake declared with its
   uncertainty): the structure describes every record, nothing is named that is not there,
   the sizes named are within 25 %, a seal's friction is reported as not identifiable beside
@@ -95,27 +97,38 @@ def right_circuit(diagnoses):
     return diagnoses['switched']
 
 
-def test_with_the_papers_circuit_every_record_gets_the_structure_verdict_and_no_effect(
+def logged(doc):
+    """Whether the record had the rig's pressures (else its position only)."""
+    return 'pressure_a' in doc['data']['outputs']
+
+
+def test_with_the_papers_circuit_every_logged_record_gets_the_structure_verdict_and_no_effect(
         paper_circuit):
     for draw, code, doc in paper_circuit:
-        assert code == STRUCTURE_STATUS, draw.seed
-        assert doc['verdict'] == 'structure' and doc['causes'] == [], draw.seed
+        assert doc['causes'] == [], draw.seed
+        if logged(doc):
+            assert code == STRUCTURE_STATUS and doc['verdict'] == 'structure', draw.seed
 
 
-def test_the_verdict_names_the_flow_gain_that_differs_by_direction_by_the_area_ratio(
+def test_the_flow_gain_that_differs_by_direction_by_the_area_ratio_is_named_in_every_record(
         paper_circuit):
     ds = rig.datasheet()
     areas = ds['bore_diameter'] ** 2 / (ds['bore_diameter'] ** 2 - ds['rod_diameter'] ** 2)
     for draw, _, doc in paper_circuit:
-        failed = {f['check']: f for f in doc['structure']['findings']
-                  if f['gating'] and not f['passed']}
-        assert 'direction_gain' in failed, draw.seed
+        gain = next(f for f in doc['structure']['findings'] if f['check'] == 'direction_gain')
+        assert not gain['passed'], draw.seed
         # Closer to A_A/A_B (1.46) than to 1: an effect that costs the loaded side flow (a
         # leakage at the rod side's pressure) takes some off it (1.24-1.49 over 14 draws,
         # bench/detection.py --third 14 --circuit paper).
-        ratio = failed['direction_gain']['value']
-        assert abs(math.log(ratio / areas)) < abs(math.log(ratio)), draw.seed
-        assert 'A_A/A_B' in failed['direction_gain']['text']
+        assert abs(math.log(gain['value'] / areas)) < abs(math.log(gain['value'])), draw.seed
+        assert 'A_A/A_B' in gain['text']
+        # From the position alone it decides only where no effect the position cannot see
+        # predicts the record nearly as well as another circuit (bench/detection.py --third 8
+        # --circuit paper --sensors position: in none of 8); else it says what would.
+        if logged(doc):
+            assert gain['gating'], draw.seed
+        elif not gain['gating']:
+            assert 'record pressure_a' in gain['text'], draw.seed
 
 
 def test_with_both_pressures_the_rod_side_and_the_brake_are_seen_and_the_rigs_circuit_suggested(

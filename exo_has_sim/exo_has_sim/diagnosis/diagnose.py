@@ -385,7 +385,8 @@ def diagnose(plant: Plant, horizon: float = DEFAULT_HORIZON, burn_in: float = DE
             say(f'  not a physical model of the HAS: {why}')
     everything = evaluate(plant, [baseline.values], windows.span, weights)[0]
     judgement = settle_ambiguous(plant, Judgement(tuple(evidence(plant, windows.span))),
-                                 baseline_validation, windows, progress)
+                                 baseline, baseline_validation, windows, weights,
+                                 tuple(unidentifiable), progress)
     if not judgement.described:
         judgement = Judgement((*judgement.findings,
                                *fit_findings(plant, baseline, baseline_validation)),

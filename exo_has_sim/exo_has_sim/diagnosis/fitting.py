@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
@@ -85,6 +86,13 @@ class Evaluation:
     def fit(self, output: int = 0) -> float:
         """MATLAB fit [%] of one output over these windows."""
         return fit_percent(self.measured[..., output], self.predicted[..., output])
+
+
+class FitBudget(TypedDict, total=False):
+    """Keyword arguments of :func:`fit_parameters` that bound its effort."""
+
+    max_iterations: int
+    tolerance: float
 
 
 @dataclass(frozen=True)
@@ -159,20 +167,24 @@ def output_weights(plant: Plant) -> FloatArray:
 
 
 def evaluate(plant: Plant, candidates: Sequence[Mapping[str, float]], span: Span,
-             weights: FloatArray) -> list[Evaluation]:
+             weights: FloatArray,
+             linearised_at: Mapping[str, float] | None = None) -> list[Evaluation]:
     """Simulate candidates over windows (one plant call) and pair them with the data.
 
     A candidate whose simulation diverges gets infinite predictions (an infinite cost).
+    ``linearised_at``: the candidates, near this one (a Jacobian's steps), are predicted
+    linearised at it where the plant projects part of its prediction out of the data
+    (:meth:`Plant.predict`).
     """
     measured = plant.measured(span)
     try:
-        predicted = plant.predict(candidates, span)
+        predicted = plant.predict(candidates, span, linearised_at)
     except SimulationError:
         if len(candidates) == 1:
             predicted = np.full((1, *measured.shape), np.inf)
         else:  # find the culprits one by one
-            predicted = np.stack([evaluate(plant, [c], span, weights)[0].predicted
-                                  for c in candidates])
+            predicted = np.stack([evaluate(plant, [c], span, weights, linearised_at)[0]
+                                  .predicted for c in candidates])
     return [Evaluation(p, measured, weights) for p in predicted]
 
 
@@ -238,9 +250,11 @@ def fit_parameters(plant: Plant, free: Sequence[Parameter], fixed: Mapping[str, 
             values[p.name] = p.from_search(float(zi))
         return values
 
-    def residual_batch(points: Sequence[FloatArray]) -> list[FloatArray]:
+    def residual_batch(points: Sequence[FloatArray],
+                       around: FloatArray | None = None) -> list[FloatArray]:
         count[0] += len(points)
-        found = evaluate(plant, [candidate(z) for z in points], span, weights)
+        found = evaluate(plant, [candidate(z) for z in points], span, weights,
+                         None if around is None else candidate(around))
         out = []
         if len(cache) > 2 * len(free) + 4:  # only the latest point and its Jacobian matter
             cache.clear()
@@ -249,7 +263,8 @@ def fit_parameters(plant: Plant, free: Sequence[Parameter], fixed: Mapping[str, 
             r = np.where(np.isfinite(r), r, 1e3)  # a diverged candidate: a large residual
             if with_prior:
                 r = np.concatenate((r, prior_residuals(z)))
-            cache[z.tobytes()] = r
+            if around is None:  # a linearised residual is no value of the cost function
+                cache[z.tobytes()] = r
             out.append(r)
         return out
 
@@ -258,13 +273,18 @@ def fit_parameters(plant: Plant, free: Sequence[Parameter], fixed: Mapping[str, 
         return cache[key] if key in cache else residual_batch([z])[0]
 
     def jac(z: FloatArray) -> FloatArray:
-        base = fun(z)
         steps = []
         for i in range(len(z)):
             step = JACOBIAN_STEP if z[i] + JACOBIAN_STEP <= upper[i] else -JACOBIAN_STEP
             steps.append(step)
         points = [z + np.eye(len(z))[i] * steps[i] for i in range(len(z))]
-        columns = [(r - base) / s for r, s in zip(residual_batch(points), steps, strict=True)]
+        if plant.linearises:
+            # Points so near are predicted linearised at their base (Plant.predict), and
+            # differenced from the base predicted so too.
+            base, *rows = residual_batch([z, *points], around=z)
+        else:
+            base, rows = fun(z), residual_batch(points)
+        columns = [(r - base) / s for r, s in zip(rows, steps, strict=True)]
         jacobians.clear()  # the last one is kept for the intervals
         jacobians[z.tobytes()] = np.column_stack(columns)
         return jacobians[z.tobytes()]

@@ -84,6 +84,8 @@ WINDOW_LOAD_STEP = 0.2
 #: per window, and the bend a line leaves of it is matched by a spurious delay of 11-15 ms
 #: (bench/README.md, "Position only").
 WINDOW_LOAD_DEGREE = 2
+#: Window-load linearisations kept (:meth:`HasPlant.predict`): a fit's latest points.
+LINEARISATIONS_KEPT = 4
 #: Candidate keys of a window load's shape (internal: predict): the degree of the Legendre
 #: polynomial across the window, and its amplitude [N, at the window's end].
 _LOAD_SHAPE_DEGREE = '_window_load_degree'
@@ -221,6 +223,7 @@ class HasPlant(Plant):
             and float(np.min(measurement.optional['motor_speed'])) < 0.0
         self._drive_cache: dict[tuple[int, float, float],
                                 tuple[FloatArray, FloatArray, FloatArray]] = {}
+        self._linearisations: dict[tuple[Any, ...], tuple[FloatArray, FloatArray]] = {}
 
     def restructured(self, circuit: str, speed_input: bool,
                      brake_force: float = 0.0) -> HasPlant:
@@ -342,7 +345,13 @@ class HasPlant(Plant):
         """
         return self._p is None and self._load is None and not self.constant_load
 
-    def predict(self, candidates: Sequence[Candidate], span: Span) -> FloatArray:
+    @property
+    def linearises(self) -> bool:
+        """Whether :meth:`predict` linearises at ``linearised_at``: with windows' loads."""
+        return self.window_load
+
+    def predict(self, candidates: Sequence[Candidate], span: Span,
+                linearised_at: Candidate | None = None) -> FloatArray:
         """Predict the outputs at the scored samples, a window's load its own if unmeasured.
 
         With :attr:`window_load`, each window takes the load, a polynomial in time of degree
@@ -353,6 +362,15 @@ class HasPlant(Plant):
         term, the start state with it) by the least-squares step, linear in the load as the
         leakage and the compression are in the pressure.
 
+        ``linearised_at``: the candidates near this one (a Jacobian's steps) are predicted
+        by Kaufman's variable projection: each one's sensitivities are taken along this
+        one's windows' loads only, in one simulation with those loads scaled to one step,
+        and the loads are re-fitted along this one's sensitivities (two simulations each,
+        against one per term more). It drops only the change of the sensitivities times the
+        change of the loads, second order; dropping the change of the sensitivities
+        altogether (one simulation) missed a third of the bulk modulus's effect on a loaded
+        hip's record. Differences are to be taken from this one linearised alike.
+
         The load so found is held to what the cylinder can carry: between what the rodless
         chamber holds at its cavitation pressure and at the relief setting
         (:meth:`load_bounds`). A window whose best load leaves that range takes the constant
@@ -360,15 +378,33 @@ class HasPlant(Plant):
         a rig's whose circuit the model does not have (-250 to +950 kN against +-7 kN
         measured, and the nominal model at 99.7 %).
         """
-        predicted = super().predict(candidates, span)
         if not self.window_load:
-            return predicted
+            return super().predict(candidates, span)
+        if linearised_at is None:
+            predicted = super().predict(candidates, span)
+            changes = self._load_sensitivities(candidates, span, predicted)
+            return predicted + _moved(changes, self._window_gains(predicted, changes, span))
+        changes, gains = self._linearisation(linearised_at, span)
+        size = np.linalg.norm(gains[0], axis=-1)  # each window's load terms [steps]
+        direction = gains[0] / np.where(size > 0.0, size, 1.0)[:, None]
+        bare = super().predict(candidates, span)
+        pushed = self.simulate(candidates, span.starts, span.steps, span.burn_in,
+                               window_loads=direction)[:, :, span.burn_in:]
+        # The candidate at the loads of the base, as its own sensitivities put them (along
+        # them, one step in one simulation), less the base's sensitivities' share.
+        at_guess: FloatArray = bare + size[:, None, None] * (pushed - bare) \
+            - _moved(changes, gains)
+        return at_guess + _moved(changes, self._window_gains(at_guess, changes, span))
+
+    def _window_gains(self, predicted: FloatArray, changes: FloatArray,
+                      span: Span) -> FloatArray:
+        """Each window's load terms [steps] that fit its position best, within the bounds.
+
+        ``predicted`` at the load guess, ``changes`` per term (:meth:`_load_sensitivities`,
+        or one candidate's for all); shape (candidates, windows, terms).
+        """
         step = WINDOW_LOAD_STEP * self.params.peak_thrust
         terms = WINDOW_LOAD_DEGREE + 1
-        shaped = [{**c, _LOAD_SHAPE_DEGREE: float(degree), _LOAD_SHAPE_SIZE: step}
-                  for degree in range(terms) for c in candidates]
-        pushed = super().predict(shaped, span).reshape(terms, *predicted.shape)
-        changes = np.moveaxis(pushed - predicted[None], 0, -1)  # (..., horizon, output, term)
         error = self.measured(span)[None, ..., 0] - predicted[..., 0]
         basis = changes[..., 0, :]  # the position's sensitivities, (..., horizon, term)
         normal = np.einsum('...ki,...kj->...ij', basis, basis)
@@ -377,7 +413,9 @@ class HasPlant(Plant):
         # the guess: the ridge is negligible against any sensitivity that counts.
         ridge = 1e-12 * np.trace(normal, axis1=-2, axis2=-1)[..., None, None] + 1e-300
         with np.errstate(invalid='ignore', over='ignore'):
-            gains = np.linalg.solve(normal + ridge * np.eye(terms), right[..., None])[..., 0]
+            gains = np.linalg.solve(np.broadcast_to(normal + ridge * np.eye(terms),
+                                                    (*right.shape, terms)),
+                                    right[..., None])[..., 0]
         gains = np.where(np.isfinite(gains), gains, 0.0)
         # The load across each window at a few instants, and the constant fit where it leaves
         # what the cylinder can carry.
@@ -392,8 +430,38 @@ class HasPlant(Plant):
             constant = np.zeros_like(gains)
             constant[..., 0] = level
             gains = np.where(outside[..., None], constant, gains)
-        return np.asarray(predicted + np.einsum('...hoi,...i->...ho', changes, gains),
-                          dtype=float)
+        return np.asarray(gains, dtype=float)
+
+    def _load_sensitivities(self, candidates: Sequence[Candidate], span: Span,
+                            predicted: FloatArray) -> FloatArray:
+        """Each candidate's change of the outputs per window-load term (:meth:`predict`).
+
+        Shape (candidates, windows, horizon, outputs, terms).
+        """
+        step = WINDOW_LOAD_STEP * self.params.peak_thrust
+        terms = WINDOW_LOAD_DEGREE + 1
+        shaped = [{**c, _LOAD_SHAPE_DEGREE: float(degree), _LOAD_SHAPE_SIZE: step}
+                  for degree in range(terms) for c in candidates]
+        pushed = super().predict(shaped, span).reshape(terms, *predicted.shape)
+        return np.moveaxis(pushed - predicted[None], 0, -1)  # (..., horizon, output, term)
+
+    def _linearisation(self, candidate: Candidate,
+                       span: Span) -> tuple[FloatArray, FloatArray]:
+        """One candidate's load sensitivities and windows' load terms, the last few kept.
+
+        Shapes (1, windows, horizon, outputs, terms) and (1, windows, terms): a fit's
+        Jacobian is linearised at the point it evaluated last.
+        """
+        key = (tuple(sorted(candidate.items())), span.starts.tobytes(), span.steps,
+               span.burn_in)
+        if key not in self._linearisations:
+            predicted = super().predict([candidate], span)
+            changes = self._load_sensitivities([candidate], span, predicted)
+            gains = self._window_gains(predicted, changes, span)
+            if len(self._linearisations) >= LINEARISATIONS_KEPT:
+                del self._linearisations[next(iter(self._linearisations))]
+            self._linearisations[key] = (changes, gains)
+        return self._linearisations[key]
 
     def load_bounds(self) -> tuple[float, float]:
         """Return the external load [N] the cylinder can carry: cavitation to relief.
@@ -595,11 +663,13 @@ class HasPlant(Plant):
         return y0
 
     def simulate(self, candidates: Sequence[Candidate], starts: IntArray, horizon: int,
-                 burn_in: int = 0) -> FloatArray:
+                 burn_in: int = 0, window_loads: FloatArray | None = None) -> FloatArray:
         """Predict the outputs over the windows for each candidate.
 
         The burn-in is simulated like the rest: the stiff hydraulics forget an imperfect
-        initial velocity within it.
+        initial velocity within it. ``window_loads``: each window's load terms [steps of
+        :data:`WINDOW_LOAD_STEP` of the peak thrust] added to the load guess, shape
+        (windows, terms) (:meth:`predict`).
         """
         starts = np.asarray(starts, dtype=np.int64)
         if starts.min() < self.first_start or starts.max() + horizon >= self.measurement.samples:
@@ -608,13 +678,18 @@ class HasPlant(Plant):
         chunk = max(1, MAX_JOINTS // len(starts))
         for first in range(0, len(candidates), chunk):
             out[first:first + chunk] = self._simulate_chunk(candidates[first:first + chunk],
-                                                            starts, horizon)
+                                                            starts, horizon, window_loads)
         return out
 
     def _simulate_chunk(self, candidates: Sequence[Candidate], starts: IntArray,
-                        horizon: int) -> FloatArray:
+                        horizon: int, window_loads: FloatArray | None = None) -> FloatArray:
         period = self.measurement.period
         windows = len(starts)
+        extra = np.zeros((horizon, windows))
+        if window_loads is not None:
+            shapes = np.stack([Legendre.basis(d)(np.linspace(-1.0, 1.0, horizon))
+                               for d in range(window_loads.shape[1])])
+            extra = WINDOW_LOAD_STEP * self.params.peak_thrust * (window_loads @ shapes).T
         packed, delays, commands, loads, states = [], [], [], [], []
         for values in candidates:
             params, delay = self.candidate_parameters(values)
@@ -636,6 +711,8 @@ class HasPlant(Plant):
                     shape = values[_LOAD_SHAPE_SIZE] * term(np.linspace(-1.0, 1.0, horizon))
                     load = load + shape[:, None]
                     start_load = start_load + shape[0]
+                load = load + extra
+                start_load = start_load + extra[0]
             loads.append(load)
             states.append(self.initial_states(params, delay, start_load, starts))
         states_out = _integrate(np.repeat(np.stack(packed), windows, axis=0),
@@ -655,6 +732,14 @@ class HasPlant(Plant):
             sign = np.where(np.tile(sent, (1, len(candidates))) < 0.0, -1.0, 1.0)
             out[k] = out[k] * np.moveaxis(sign, 0, 1).reshape(shape)
         return np.stack(out, axis=-1)
+
+
+def _moved(changes: FloatArray, gains: FloatArray) -> FloatArray:
+    """Return the outputs' change by windows' load terms.
+
+    ``changes`` per term, shape (..., horizon, output, term); ``gains``, (..., term).
+    """
+    return np.asarray(np.einsum('...hoi,...i->...ho', changes, gains), dtype=float)
 
 
 def _integrate(packed: FloatArray, delay: FloatArray, y0: FloatArray, commands: FloatArray,

@@ -242,10 +242,19 @@ class Plant(ABC):
         return np.stack([self.measurement.signal(name)[index] for name in self.outputs],
                         axis=-1)
 
-    def predict(self, candidates: Sequence[Candidate], span: Span) -> FloatArray:
+    @property
+    def linearises(self) -> bool:
+        """Whether :meth:`predict` linearises at ``linearised_at`` (else it ignores it)."""
+        return False
+
+    def predict(self, candidates: Sequence[Candidate], span: Span,
+                linearised_at: Candidate | None = None) -> FloatArray:
         """Predict the outputs at the scored samples.
 
-        Returns an array of shape (candidates, windows, horizon, outputs).
+        Returns an array of shape (candidates, windows, horizon, outputs). ``linearised_at``
+        concerns a plant that projects part of its prediction out of the data
+        (:meth:`HasPlant.predict <exo_has_sim.diagnosis.has_plant.HasPlant.predict>`); this
+        one simulates exactly and ignores it.
         """
         return self.simulate(candidates, span.starts, span.steps,
                              span.burn_in)[:, :, span.burn_in:]

@@ -44,6 +44,7 @@ from exo_has_sim.diagnosis.compare import Span, Windows
 from exo_has_sim.diagnosis.fitting import (
     Evaluation,
     Fit,
+    FitBudget,
     FloatArray,
     evaluate,
     fit_parameters,
@@ -203,7 +204,9 @@ def _screen(plant: Plant, reference: Fit, effects: Sequence[str], windows: Windo
         for value in added[0].grid or (added[0].start,):
             candidates.append(reference.values | others | {added[0].name: value})
             owners.append(effect)
-    evaluations = evaluate(plant, candidates, span, weights)
+    # The grid's points are linearised at the reference (a window's unmeasured load,
+    # Plant.predict): half the simulations, and screening only chooses what to fit.
+    evaluations = evaluate(plant, candidates, span, weights, linearised_at=reference.values)
     jacobian, solve = None, None
     if reference.jacobian is not None and reference.jacobian.size:
         columns = reference.jacobian.shape[1]
@@ -263,7 +266,8 @@ def _strayed(plant: Plant, reference: Fit) -> bool:
 def rank(plant: Plant, reference: Fit, reference_validation: Evaluation, named: Sequence[str],
          effects: Sequence[str], windows: Windows, weights: FloatArray,
          progress: Progress | None = None, every: bool = False,
-         enough: Callable[[Score], bool] | None = None) -> list[Score]:
+         enough: Callable[[Score], bool] | None = None,
+         budget: FitBudget | None = None) -> list[Score]:
     """Score every effect on top of a reference model; best score first.
 
     Each effect's size grid is tried on the reference held fixed (screening); the
@@ -273,8 +277,10 @@ def rank(plant: Plant, reference: Fit, reference_validation: Evaluation, named: 
     found, each also from the nominal values where the reference strayed, unless its first
     fit already passes ``enough``). The others are scored at their best grid point
     (``Score.screened``), which can only flatter them less than a joint fit would, and cannot
-    be named.
+    be named. ``budget``: the joint fits' ``max_iterations`` and ``tolerance``
+    (:func:`~exo_has_sim.diagnosis.fitting.fit_parameters`), where not the defaults.
     """
+    budget = budget or {}
     if progress:
         progress(f'  trying the size grids of {len(effects)} effects')
     screened, reference_cost = _screen(plant, reference, effects, windows, weights)
@@ -314,13 +320,13 @@ def rank(plant: Plant, reference: Fit, reference_validation: Evaluation, named: 
         sizes = {p.name: screened[effect][0][p.name] for p in added}
         try:
             fit = fit_parameters(plant, free, {}, windows.estimation_span, weights,
-                                 initial=screened[effect][0])
+                                 initial=screened[effect][0], **budget)
         except FitError:
             # The first-order projection can move the reference's values where the plant
             # cannot be simulated (a soft oil and a fast motor): start from them unmoved,
             # at the size screening chose, which it did simulate.
             fit = fit_parameters(plant, free, {}, windows.estimation_span, weights,
-                                 initial=reference.values | sizes)
+                                 initial=reference.values | sizes, **budget)
         validation = evaluate(plant, [fit.values], windows.validation_span, weights)[0]
         score = Score((*named, effect), fit, validation, reference_validation, len(added))
         if (every or effect == order[0]) and strayed \
@@ -330,7 +336,8 @@ def rank(plant: Plant, reference: Fit, reference_validation: Evaluation, named: 
             # dead zone), so the likeliest effect's fit also starts from the nominal values,
             # and the better one wins.
             again = fit_parameters(plant, free, {}, windows.estimation_span, weights,
-                                   initial=reference.values | plant.nominal() | sizes)
+                                   initial=reference.values | plant.nominal() | sizes,
+                                   **budget)
             if again.cost < fit.cost:
                 validation = evaluate(plant, [again.values], windows.validation_span,
                                       weights)[0]

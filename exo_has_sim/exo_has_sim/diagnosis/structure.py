@@ -56,6 +56,7 @@ from exo_has_sim.diagnosis.fitting import (
     Z95,
     Evaluation,
     Fit,
+    FitBudget,
     FloatArray,
     evaluate,
     fit_parameters,
@@ -63,7 +64,7 @@ from exo_has_sim.diagnosis.fitting import (
 )
 from exo_has_sim.diagnosis.has_plant import HasPlant
 from exo_has_sim.diagnosis.plants import Plant, smooth
-from exo_has_sim.diagnosis.selection import Progress
+from exo_has_sim.diagnosis.selection import Progress, rank
 from exo_has_sim.errors import DiagnosisError, FitError
 
 #: Least validated fit [%] of each output, under the model the verdict rests on, for the
@@ -226,6 +227,20 @@ class Judgement:
         """The best alternative that describes the record, if any."""
         return next((a for a in self.alternatives if a.described), None)
 
+    @property
+    def alike(self) -> list[Alternative]:
+        """The other alternatives that describe the record within :data:`ALIKE` of the best.
+
+        A pump that feeds the rod side to retract does so in a closed circuit and in a
+        switched one alike while the rod side carries the load: such records cannot tell
+        them apart, and the verdict says so rather than choosing.
+        """
+        best = self.suggestion
+        if best is None:
+            return []
+        return [a for a in self.alternatives
+                if a is not best and a.described and a.error <= ALIKE * best.error]
+
     def sentences(self) -> list[str]:
         """Say the verdict in lines: what fails, and what structure would describe it."""
         if self.described:
@@ -238,6 +253,10 @@ class Judgement:
             fits = ', '.join(f'{k} {v:.1f} %' for k, v in best.fits.items())
             lines.append(f'  a structure that does: {best.description} (validated fits '
                          f'{fits}); state it in the parameters file and diagnose again')
+            for other in self.alike:
+                lines.append(f'  as well as it (normalised error {other.error:.3g} against '
+                             f'{best.error:.3g}): {other.description}; these data cannot '
+                             'tell them apart')
         elif self.alternatives:
             lines.append('  none of the structures tried describes them either: '
                          + '; '.join(f'{a.name} (normalised error {a.error:.2f})'
@@ -250,7 +269,8 @@ class Judgement:
         return {'described': self.described,
                 'findings': [f.to_json() for f in self.findings],
                 'alternatives': [a.to_json() for a in self.alternatives],
-                'suggestion': None if best is None else best.name}
+                'suggestion': None if best is None else best.name,
+                'alike': [a.name for a in self.alike]}
 
 
 def _finite(value: float) -> float | None:
@@ -642,8 +662,9 @@ def output_fits(plant: Plant, evaluation: Evaluation) -> dict[str, float]:
     return {output: evaluation.fit(k) for k, output in enumerate(plant.outputs)}
 
 
-def settle_ambiguous(plant: Plant, judgement: Judgement, validation: Evaluation,
-                     windows: Windows, progress: Progress | None = None) -> Judgement:
+def settle_ambiguous(plant: Plant, judgement: Judgement, baseline: Fit, validation: Evaluation,
+                     windows: Windows, weights: FloatArray, effects: Sequence[str],
+                     progress: Progress | None = None) -> Judgement:
     """Decide a flow gain by direction that is the only evidence against the structure.
 
     A loss at the loaded chamber's pressure slows one direction as a circuit that feeds the
@@ -652,31 +673,78 @@ def settle_ambiguous(plant: Plant, judgement: Judgement, validation: Evaluation,
     far below its setting. Where that finding is the only one the structure fails, the
     plant's other structures are fitted (:func:`try_structures`): the verdict stands if one
     describes the record with at most :data:`AMBIGUOUS_GAIN` of the model's error (from its
-    ``validation``), and the finding is reported only otherwise,
-    saying why, for the effects to be searched. Any other judgement is returned as it is.
+    ``baseline`` fit's ``validation``), and the finding is reported only otherwise, saying
+    why, for the effects to be searched. Without a pressure signal the model's error is also
+    taken with each of ``effects`` (those the record cannot identify) that
+    :data:`DIRECTION_MIMICS` lists fitted on top of it (:func:`_rival_effect`): a 28 N seal
+    friction on a loaded hip slowed the extension through the leakage at its pressure, the
+    flow gains differed by 1.40, and a closed circuit had 0.31 of the paper circuit's error;
+    such a record does not tell a circuit from an effect the signals cannot see. Any other
+    judgement is returned as it is.
     """
     failed = judgement.failed
     if not isinstance(plant, HasPlant) or [f.check for f in failed] != ['direction_gain']:
         return judgement
     tried = try_structures(plant, judgement, windows, progress)
     best, own = tried.suggestion, _error(output_fits(plant, validation), plant.outputs)
-    if best is not None and best.error <= AMBIGUOUS_GAIN * own:
+    pressure = plant.measurement.has('pressure_a')
+    if best is None or best.error > AMBIGUOUS_GAIN * own:
+        rival = None
+    elif pressure:
         return tried
+    else:
+        rival = _rival_effect(plant, best, baseline, validation, windows, weights, effects,
+                              progress)
+        if rival is None:
+            return tried
+        own = rival[1]
     best_share = (f'the best {min(a.error for a in tried.alternatives) / own:.2f}'
                   if tried.alternatives and own > 0.0 else 'none fitted')
-    if plant.measurement.has('pressure_a'):
+    if pressure:
         why = ('a loss at the loaded pressure that the regression does not take out (a '
                'relief valve cracked far below its setting) gives such a ratio too')
         then = 'the effects are searched'
     else:
         why = ("without a pressure signal a loss at the loaded chamber's pressure (a relief "
-               'valve, a leakage) gives such a ratio too')
+               'valve, a leakage, a force that raises it) gives such a ratio too')
         then = 'record pressure_a to judge the circuit'
+    against = "the model's error" if rival is None else f"the model's error with {rival[0]}"
     text = (f'{failed[0].text}; {why}, and no structure that routes the flow otherwise '
-            f"predicts the record with at most {AMBIGUOUS_GAIN:g} times the model's error "
+            f'predicts the record with at most {AMBIGUOUS_GAIN:g} times {against} '
             f'({best_share}): {then}')
     return Judgement(tuple(replace(f, gating=False, text=text) if f is failed[0] else f
                            for f in judgement.findings))
+
+
+def _rival_effect(plant: HasPlant, best: Alternative, baseline: Fit, validation: Evaluation,
+                  windows: Windows, weights: FloatArray, effects: Sequence[str],
+                  progress: Progress | None) -> tuple[str, float] | None:
+    """Find the first of ``effects`` that, fitted on the model, leaves ``best`` no clear gain.
+
+    Each is fitted jointly with the baseline's parameters (:func:`rank` with ``every``:
+    from the nominal values too where the baseline strayed) on the budget ``best`` had
+    (:data:`ALTERNATIVE_BUDGET`), until one has at most ``best``'s error over
+    :data:`AMBIGUOUS_GAIN`.
+
+    Returns
+    -------
+    tuple or None
+        The effect and the model's normalised error with it; None if none comes so near.
+
+    """
+    reach = best.error / AMBIGUOUS_GAIN
+
+    def error(score: Any) -> float:
+        return _error(output_fits(plant, score.validation), plant.outputs)
+
+    if progress:
+        progress(f'  {best.name}: the model with each effect, against it')
+    for effect in (e for e in effects if e in DIRECTION_MIMICS):
+        score = rank(plant, baseline, validation, [], [effect], windows, weights, progress,
+                     every=True, enough=lambda s: error(s) <= reach, budget=ALTERNATIVE_BUDGET)[0]
+        if error(score) <= reach:
+            return effect, error(score)
+    return None
 
 
 def _error(fits: dict[str, float], outputs: Sequence[str]) -> float:
@@ -692,6 +760,18 @@ CIRCUIT_TITLES = {
                 'accumulator'}
 
 
+#: An alternative whose normalised error is within this factor of the best's is reported as
+#: fitting as well (:attr:`Judgement.alike`): one record's validated errors differ by more
+#: between fits that ended in other local minima (1.8 times, the first plant's 5005 from its
+#: position, fitted with two ways of taking the Jacobian).
+ALIKE = 1.25
+#: Effects that, unseen, make the flow gain differ by direction as another circuit does: a
+#: loss at the loaded chamber's pressure, or a force that raises it where leakage follows the
+#: pressure (entrained air changes the stiffness, not the flow either way settles to).
+DIRECTION_MIMICS = ('coulomb_friction', 'braking_load', 'quadratic_leakage', 'relief_valve')
+#: Fit budget of another structure, and of an effect it is weighed against
+#: (:func:`~exo_has_sim.diagnosis.fitting.fit_parameters`): the same for both.
+ALTERNATIVE_BUDGET: FitBudget = {'max_iterations': 6, 'tolerance': 1e-2}
 #: A force resisting the motion both ways beyond this share of the peak thrust (and three
 #: standard errors) is given to the structures tried as a brake to fit.
 BRAKE_SHARE = 0.01
@@ -742,7 +822,7 @@ def try_structures(plant: HasPlant, judgement: Judgement, windows: Windows,
         weights = output_weights(other)
         try:
             fit = fit_parameters(other, other.baseline, {}, windows.estimation_span, weights,
-                                 max_iterations=6, tolerance=1e-2)
+                                 **ALTERNATIVE_BUDGET)
         except (FitError, DiagnosisError):
             continue
         validation = evaluate(other, [fit.values], windows.validation_span, weights)[0]
