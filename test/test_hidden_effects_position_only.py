@@ -14,8 +14,8 @@ a 3.1 rad/s dead zone on the second plant's gait with four effects beside it, an
 verdict, a 47 % position fit; on 2026-11-26 2 in 40, and 0 of 40 on seeds apart); no cause
 named other than the hidden effect unless the hidden effect is reported indistinguishable
 from it (an effect that the signals cannot identify is still checked as a
-rival of what is named: the second plant's entrained air, 6006, is named as a 10.9 rad/s
-dead zone with the air beside it); every effect acting through the pressure reported
+rival of what is named: the second plant's entrained air, 6006, was once named as a 10.9
+rad/s dead zone with the air beside it); every effect acting through the pressure reported
 unidentifiable, never named; every pump dead zone of the first plant named, within
 25 % of its size (here 5002; the second plant's, 11.8 rad/s on a knee's gait, came out
 11.5 % high: bench/README.md, "Position only"). Transport delays are not asserted: without the

@@ -64,7 +64,7 @@ from exo_has_sim.diagnosis.fitting import (
 )
 from exo_has_sim.diagnosis.has_plant import HasPlant
 from exo_has_sim.diagnosis.plants import Plant, smooth
-from exo_has_sim.diagnosis.selection import Progress, rank
+from exo_has_sim.diagnosis.selection import Progress, Score, rank
 from exo_has_sim.errors import DiagnosisError, FitError
 
 #: Least validated fit [%] of each output, under the model the verdict rests on, for the
@@ -734,7 +734,7 @@ def _rival_effect(plant: HasPlant, best: Alternative, baseline: Fit, validation:
     """
     reach = best.error / AMBIGUOUS_GAIN
 
-    def error(score: Any) -> float:
+    def error(score: Score) -> float:
         return _error(output_fits(plant, score.validation), plant.outputs)
 
     if progress:
