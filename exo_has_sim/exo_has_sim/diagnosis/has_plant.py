@@ -86,10 +86,6 @@ WINDOW_LOAD_STEP = 0.2
 WINDOW_LOAD_DEGREE = 2
 #: Window-load linearisations kept (:meth:`HasPlant.predict`): a fit's latest points.
 LINEARISATIONS_KEPT = 4
-#: Candidate keys of a window load's shape (internal: predict): the degree of the Legendre
-#: polynomial across the window, and its amplitude [N, at the window's end].
-_LOAD_SHAPE_DEGREE = '_window_load_degree'
-_LOAD_SHAPE_SIZE = '_window_load_size'
 #: Most joints (candidate x window pairs) integrated in one call, which bounds the memory of
 #: the state history (a call holds horizon x joints x model.N_STATE floats).
 MAX_JOINTS = 2048
@@ -438,11 +434,12 @@ class HasPlant(Plant):
 
         Shape (candidates, windows, horizon, outputs, terms).
         """
-        step = WINDOW_LOAD_STEP * self.params.peak_thrust
         terms = WINDOW_LOAD_DEGREE + 1
-        shaped = [{**c, _LOAD_SHAPE_DEGREE: float(degree), _LOAD_SHAPE_SIZE: step}
-                  for degree in range(terms) for c in candidates]
-        pushed = super().predict(shaped, span).reshape(terms, *predicted.shape)
+        pushed = np.stack([
+            self.simulate(candidates, span.starts, span.steps, span.burn_in,
+                          window_loads=np.tile(np.eye(terms)[degree], (len(span.starts), 1))
+                          )[:, :, span.burn_in:]
+            for degree in range(terms)])
         return np.moveaxis(pushed - predicted[None], 0, -1)  # (..., horizon, output, term)
 
     def _linearisation(self, candidate: Candidate,
@@ -685,7 +682,7 @@ class HasPlant(Plant):
                         horizon: int, window_loads: FloatArray | None = None) -> FloatArray:
         period = self.measurement.period
         windows = len(starts)
-        extra = np.zeros((horizon, windows))
+        extra = None
         if window_loads is not None:
             shapes = np.stack([Legendre.basis(d)(np.linspace(-1.0, 1.0, horizon))
                                for d in range(window_loads.shape[1])])
@@ -706,13 +703,9 @@ class HasPlant(Plant):
                 level = float(values.get('load_force', self._load_guess))
                 load = level + self._rod_force[_delayed_indices(starts, horizon, 0)]
                 start_load = level + self._rod_force[starts]
-                if _LOAD_SHAPE_DEGREE in values:  # a term of a window's own load (predict)
-                    term = Legendre.basis(int(values[_LOAD_SHAPE_DEGREE]))
-                    shape = values[_LOAD_SHAPE_SIZE] * term(np.linspace(-1.0, 1.0, horizon))
-                    load = load + shape[:, None]
-                    start_load = start_load + shape[0]
-                load = load + extra
-                start_load = start_load + extra[0]
+                if extra is not None:  # the windows' own loads (predict)
+                    load = load + extra
+                    start_load = start_load + extra[0]
             loads.append(load)
             states.append(self.initial_states(params, delay, start_load, starts))
         states_out = _integrate(np.repeat(np.stack(packed), windows, axis=0),
