@@ -30,6 +30,11 @@ is checked on draws it was not chosen on.
 each outcome: named, missed, another cause named (with the hidden effect reported beside it
 or not), or, for an effect the signals cannot identify, nothing named.
 
+``--single PLANT/SEED[/EFFECT] ...`` diagnoses draws one after another, each alone on every
+core, and gives each one's wall time, CPU time and peak memory (the speed of one record's
+diagnosis, as a user on the robot PC would wait for it); the effect is the one the seed's
+ensemble gives it (``--hidden``'s, ``--third``'s), else none.
+
 Usage (``./run shell``): ``python bench/detection.py --null 40``, ``python bench/detection.py
 --limits --draws 10``, ``python bench/detection.py --twins 6`` and ``python
 bench/detection.py --hidden --sensors position``; ``--jobs`` diagnoses in
@@ -42,6 +47,7 @@ import argparse
 import json
 import multiprocessing
 import os
+import resource
 import sys
 import tempfile
 import time
@@ -114,7 +120,7 @@ def _draw(plant: str, seed: int, effect: str, size: float | None, duration: floa
 Task = tuple[str, int, str, float | None, str, str, float]
 
 
-def diagnose_draw(task: Task) -> dict[str, Any]:
+def diagnose_draw(task: Task, quiet: bool = True) -> dict[str, Any]:
     """Draw one data set, write it as CSV, diagnose it; the verdict and the truth.
 
     The third plant (``'c'``, and ``'c:paper'`` for its rig described with the paper's
@@ -141,7 +147,9 @@ def diagnose_draw(task: Task) -> dict[str, Any]:
     started = time.perf_counter()
     if os.environ.get(CONSTANT_LOAD):
         arguments.append('--constant-load')
-    code = diagnose_main([str(path), *arguments, '--json', str(out), '-q'])
+    if quiet:
+        arguments.append('-q')
+    code = diagnose_main([str(path), *arguments, '--json', str(out)])
     wall = time.perf_counter() - started
     doc = json.loads(out.read_text()) if code in (0, STRUCTURE_STATUS) else {}
     judged = doc.get('structure') or {}
@@ -354,12 +362,21 @@ def low_relief(count: int, sensors: str, jobs: int) -> None:
     write_results(f'detection_low_relief_{_tag(sensors)}', {'draws': results}, lines)
 
 
+def ensemble_effect(plant: str, seed: int) -> str:
+    """Return the effect a seed's ensemble hides in its draw (none outside them)."""
+    for name, count, first in HIDDEN_DRAWS:
+        if plant == name and first <= seed < first + count:
+            return EFFECT_CHOICES[(seed - first) % len(EFFECT_CHOICES)]
+    if plant.startswith('c') and seed >= FIRST_THIRD_SEED:
+        return EFFECT_CHOICES[(seed - FIRST_THIRD_SEED) % len(EFFECT_CHOICES)]
+    return 'none'
+
+
 def hidden_draws(sensors: str, jobs: int) -> None:
     """Diagnose the hidden-effect test's draws (test/test_hidden_effects.py) with ``sensors``."""
     with tempfile.TemporaryDirectory() as folder:
-        tasks = [(plant, first + i, EFFECT_CHOICES[i % len(EFFECT_CHOICES)], None, sensors,
-                  folder, HIDDEN_DURATION)
-                 for plant, count, first in HIDDEN_DRAWS for i in range(count)]
+        tasks = [(plant, first + i, ensemble_effect(plant, first + i), None, sensors, folder,
+                  HIDDEN_DURATION) for plant, count, first in HIDDEN_DRAWS for i in range(count)]
         results = run_tasks(tasks, jobs)
     results.sort(key=lambda r: r['seed'])
     outcomes: dict[str, list[dict[str, Any]]] = {
@@ -386,8 +403,9 @@ def third_plant(count: int, circuit: str, sensors: str, jobs: int) -> None:
     """
     plant = 'c' if circuit == 'switched' else f'c:{circuit}'
     with tempfile.TemporaryDirectory() as folder:
-        tasks = [(plant, FIRST_THIRD_SEED + i, EFFECT_CHOICES[i % len(EFFECT_CHOICES)], None,
-                  sensors, folder, HIDDEN_DURATION) for i in range(count)]
+        tasks = [(plant, seed, ensemble_effect(plant, seed), None, sensors, folder,
+                  HIDDEN_DURATION)
+                 for seed in range(FIRST_THIRD_SEED, FIRST_THIRD_SEED + count)]
         results = sorted(run_tasks(tasks, jobs), key=lambda r: r['seed'])
     for r in results:
         r['outcome'] = _outcome(r)
@@ -409,6 +427,31 @@ def third_plant(count: int, circuit: str, sensors: str, jobs: int) -> None:
               + (f'; suggested {r["suggestion"]}' if r.get('suggestion') else '')
               for r in results]
     write_results(f'detection_third_{circuit}_{sensors}', {'draws': results}, lines)
+
+
+def single(specs: Sequence[str], sensors: str, progress: bool) -> None:
+    """Diagnose each ``plant/seed[/effect]`` alone, on every core; wall, CPU and memory."""
+    results = []
+    with tempfile.TemporaryDirectory() as folder:
+        for spec in specs:
+            plant, seed_text, *rest = spec.split('/')
+            seed = int(seed_text)
+            effect = rest[0] if rest else ensemble_effect(plant, seed)
+            cpu = time.process_time()
+            row = diagnose_draw((plant, seed, effect, None, sensors, folder, HIDDEN_DURATION),
+                                quiet=not progress)
+            row['outcome'] = _outcome(row)
+            row['cpu_s'] = round(time.process_time() - cpu, 1)
+            # The process's peak so far: the largest of the diagnoses up to this one.
+            row['peak_rss_mib'] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+                                        / 1024.0)
+            print(json.dumps(row), flush=True)
+            results.append(row)
+    lines = [f'bench/detection.py --single --sensors {_tag(sensors)}: {describe_machine()}',
+             *(f'  {r["plant"]} {r["seed"]} {r["effect"]}: wall {r["wall_s"]:.1f} s, CPU '
+               f'{r["cpu_s"]:.1f} s, peak {r["peak_rss_mib"]} MiB; {_outcome_line(r)}'
+               for r in results)]
+    write_results(f'detection_single_{_tag(sensors)}', {'draws': results}, lines)
 
 
 def twins(count: int, sensors: str, jobs: int) -> None:
@@ -521,6 +564,10 @@ def main() -> None:
     mode.add_argument('--stated-limits', type=int, metavar='N',
                       help='effect-free draws whose stated limits are checked at the limit '
                       'itself, by twins (--plants)')
+    mode.add_argument('--single', nargs='+', metavar='PLANT/SEED[/EFFECT]',
+                      help='draws diagnosed one at a time on every core (a, b, c, c:paper)')
+    parser.add_argument('--progress', action='store_true',
+                        help="with --single: the diagnosis's progress lines")
     parser.add_argument('--plants', default='b',
                         help='with --stated-limits: the plants taking turns (a, b, c)')
     parser.add_argument('--offsets', type=int, nargs='+', default=[0, 2],
@@ -551,6 +598,8 @@ def main() -> None:
         null_ensemble(args.holdout, args.sensors, args.jobs, FIRST_HOLDOUT_SEED, 'holdout')
     elif args.twins is not None:
         twins(args.twins, args.sensors, args.jobs)
+    elif args.single is not None:
+        single(args.single, args.sensors, args.progress)
     elif args.hidden:
         hidden_draws(args.sensors, args.jobs)
     elif args.low_relief is not None:

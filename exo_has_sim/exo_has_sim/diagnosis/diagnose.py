@@ -8,6 +8,9 @@
 3. output weights: each output's residual divided by its robust RMS under a preliminary
    baseline fit, so that position, pressure and motor speed count alike whatever their units
    and noise, then the baseline fit (the plant's hard-to-know parameters) with those weights;
+   where the record's evidence already contradicts the model's structure, the baseline is
+   fitted on the budget the other structures get, and converged only if the diagnosis goes on
+   to the effects;
 4. the paper's third-order transfer function (:mod:`~exo_has_sim.diagnosis.transfer`);
    the record's evidence of the circuit and the motor judged
    (:mod:`~exo_has_sim.diagnosis.structure`): where it contradicts the model's, the verdict
@@ -81,6 +84,7 @@ from exo_has_sim.diagnosis.selection import (
     rivals,
 )
 from exo_has_sim.diagnosis.structure import (
+    ALTERNATIVE_BUDGET,
     Judgement,
     evidence,
     fit_findings,
@@ -373,27 +377,41 @@ def diagnose(plant: Plant, horizon: float = DEFAULT_HORIZON, burn_in: float = DE
     preliminary = fit_parameters(plant, plant.baseline, {}, estimation, weights,
                                  max_iterations=4, tolerance=1e-2)
     weights = _weights(plant, estimation, preliminary.values, weights)
+    findings = evidence(plant, windows.span)
+    # A model the record's evidence contradicts is fitted as the other structures are, on
+    # their budget, to be weighed against them: converged, it took three quarters of the time
+    # of a valve-switched record's verdict, which it did not change.
+    doubted = any(f.gating and not f.passed for f in findings)
+    budget = ALTERNATIVE_BUDGET if doubted else {'tolerance': REFERENCE_TOLERANCE}
     baseline = fit_parameters(plant, plant.baseline, {}, estimation, weights,
-                              initial=preliminary.values, tolerance=REFERENCE_TOLERANCE)
+                              initial=preliminary.values, **budget)
     baseline_validation = evaluate(plant, [baseline.values], validation, weights)[0]
-    say(f'baseline: validated position fit {baseline_validation.fit(0):.2f} %')
+    say(f'baseline{" (on the budget of the other structures)" if doubted else ""}: '
+        f'validated position fit {baseline_validation.fit(0):.2f} %')
     transfer, transfer_fit = _paper_transfer_function(plant, windows)
     if transfer is not None:
         say(f"paper's third-order transfer function: validated position fit "
             f'{transfer_fit:.2f} %')
         for why in transfer.unphysical():
             say(f'  not a physical model of the HAS: {why}')
-    everything = evaluate(plant, [baseline.values], windows.span, weights)[0]
-    judgement = settle_ambiguous(plant, Judgement(tuple(evidence(plant, windows.span))),
-                                 baseline, baseline_validation, windows, weights,
-                                 tuple(unidentifiable), progress)
+    judgement = settle_ambiguous(plant, Judgement(tuple(findings)), baseline,
+                                 baseline_validation, windows, weights, tuple(unidentifiable),
+                                 progress)
     if not judgement.described:
         judgement = Judgement((*judgement.findings,
                                *fit_findings(plant, baseline, baseline_validation)),
                               judgement.alternatives)
+        everything = evaluate(plant, [baseline.values], windows.span, weights)[0]
         return _structure_verdict(plant, windows, weights, nominal, baseline,
                                   baseline_validation, everything, transfer, transfer_fit,
                                   unidentifiable, judgement, started, progress)
+    if doubted:
+        say('converging the baseline, its structure not contradicted after all')
+        baseline = fit_parameters(plant, plant.baseline, {}, estimation, weights,
+                                  initial=baseline.values, tolerance=REFERENCE_TOLERANCE)
+        baseline_validation = evaluate(plant, [baseline.values], validation, weights)[0]
+        say(f'baseline: validated position fit {baseline_validation.fit(0):.2f} %')
+    everything = evaluate(plant, [baseline.values], windows.span, weights)[0]
     steps = forward_selection(plant, baseline, baseline_validation, windows, weights, chosen,
                               max_causes, progress)
     named = [step[0] for step in steps if step[0].significant]

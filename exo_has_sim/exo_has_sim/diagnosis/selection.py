@@ -77,6 +77,12 @@ SCREEN_STRIDE = 1
 #: A runner-up is fitted jointly too only if its screened cost is within this factor of the
 #: best's (a rival explanation, as quadratic leakage is for a cracked relief valve).
 RIVAL_FACTOR = 2.0
+#: A fit that must come near a cost to matter (a rival's, the named effect's validated cost;
+#: another structure's error) gets its second start only if its first left at most this
+#: factor of that cost: the largest gain of a second start measured was 2.9 times the cost
+#: (a rival of the first plant's 5009 dead zone from its position, which still stayed 89
+#: times the dead zone's), the friction in :func:`hidden_rivals`'s docstring 2.5 times.
+SECOND_START_REACH = 4.0
 
 Progress = Callable[[str], None]
 
@@ -266,7 +272,7 @@ def _strayed(plant: Plant, reference: Fit) -> bool:
 def rank(plant: Plant, reference: Fit, reference_validation: Evaluation, named: Sequence[str],
          effects: Sequence[str], windows: Windows, weights: FloatArray,
          progress: Progress | None = None, every: bool = False,
-         enough: Callable[[Score], bool] | None = None,
+         retry: Callable[[Score], bool] | None = None,
          budget: FitBudget | None = None) -> list[Score]:
     """Score every effect on top of a reference model; best score first.
 
@@ -274,10 +280,10 @@ def rank(plant: Plant, reference: Fit, reference_validation: Evaluation, named: 
     :data:`JOINT_FITS` effects whose best grid point lowers the estimation cost most, by at
     least :data:`SCREEN_GAIN` and to within :data:`RIVAL_FACTOR` of the best, are then fitted
     jointly with the reference's parameters (``every``: all of them, whatever screening
-    found, each also from the nominal values where the reference strayed, unless its first
-    fit already passes ``enough``). The others are scored at their best grid point
-    (``Score.screened``), which can only flatter them less than a joint fit would, and cannot
-    be named. ``budget``: the joint fits' ``max_iterations`` and ``tolerance``
+    found, each also from the nominal values where the reference strayed and ``retry``, if
+    given, holds the first fit worth a second start). The others are scored at their best
+    grid point (``Score.screened``), which can only flatter them less than a joint fit would,
+    and cannot be named. ``budget``: the joint fits' ``max_iterations`` and ``tolerance``
     (:func:`~exo_has_sim.diagnosis.fitting.fit_parameters`), where not the defaults.
     """
     budget = budget or {}
@@ -330,7 +336,7 @@ def rank(plant: Plant, reference: Fit, reference_validation: Evaluation, named: 
         validation = evaluate(plant, [fit.values], windows.validation_span, weights)[0]
         score = Score((*named, effect), fit, validation, reference_validation, len(added))
         if (every or effect == order[0]) and strayed \
-                and not (enough is not None and enough(score)):
+                and (retry is None or retry(score)):
             # The reference's parameters strayed from nominal to absorb the effect: from
             # there the joint fit can stall in their valley (a bulk modulus pinned high by a
             # dead zone), so the likeliest effect's fit also starts from the nominal values,
@@ -414,14 +420,18 @@ def hidden_rivals(plant: Plant, steps: Sequence[Sequence[Score]], baseline: Fit,
         def rival(score: Score, best: Score = best) -> bool:
             return score.ratio < 1.0 and _paired_p(best.validation, score.validation) >= ALPHA
 
-        # A fit that is a rival already needs no second start: a better fit stays one.
+        # A fit that is a rival already needs no second start (a better fit stays one), nor
+        # one that left the named effect's cost far out of reach.
+        def retry(score: Score, best: Score = best) -> bool:
+            return not rival(score) and score.ratio <= SECOND_START_REACH * best.ratio
+
         others = [e for e in effects if e != best.effect and e not in named]
         if not others:
             named.append(best.effect)
             reference, reference_validation = best.fit, best.validation
             continue
         ranking = rank(plant, reference, reference_validation, named, others, windows,
-                       weights, progress, every=True, enough=rival)
+                       weights, progress, every=True, retry=retry)
         found = [score.effect for score in ranking if rival(score)]  # each fitted jointly
         if found:
             out[best.effect] = found

@@ -64,7 +64,7 @@ from exo_has_sim.diagnosis.fitting import (
 )
 from exo_has_sim.diagnosis.has_plant import HasPlant
 from exo_has_sim.diagnosis.plants import Plant, smooth
-from exo_has_sim.diagnosis.selection import Progress, Score, rank
+from exo_has_sim.diagnosis.selection import SECOND_START_REACH, Progress, Score, rank
 from exo_has_sim.errors import DiagnosisError, FitError
 
 #: Least validated fit [%] of each output, under the model the verdict rests on, for the
@@ -722,7 +722,9 @@ def _rival_effect(plant: HasPlant, best: Alternative, baseline: Fit, validation:
     """Find the first of ``effects`` that, fitted on the model, leaves ``best`` no clear gain.
 
     Each is fitted jointly with the baseline's parameters (:func:`rank` with ``every``:
-    from the nominal values too where the baseline strayed) on the budget ``best`` had
+    from the nominal values too where the baseline strayed and the first fit came within
+    :data:`~exo_has_sim.diagnosis.selection.SECOND_START_REACH` of the cost aimed at) on the
+    budget ``best`` had
     (:data:`ALTERNATIVE_BUDGET`), until one has at most ``best``'s error over
     :data:`AMBIGUOUS_GAIN`.
 
@@ -733,6 +735,8 @@ def _rival_effect(plant: HasPlant, best: Alternative, baseline: Fit, validation:
 
     """
     reach = best.error / AMBIGUOUS_GAIN
+    # A second start only where the first came near (the error is about the cost's root).
+    near = math.sqrt(SECOND_START_REACH) * reach
 
     def error(score: Score) -> float:
         return _error(output_fits(plant, score.validation), plant.outputs)
@@ -741,7 +745,8 @@ def _rival_effect(plant: HasPlant, best: Alternative, baseline: Fit, validation:
         progress(f'  {best.name}: the model with each effect, against it')
     for effect in (e for e in effects if e in DIRECTION_MIMICS):
         score = rank(plant, baseline, validation, [], [effect], windows, weights, progress,
-                     every=True, enough=lambda s: error(s) <= reach, budget=ALTERNATIVE_BUDGET)[0]
+                     every=True, retry=lambda s: reach < error(s) <= near,
+                     budget=ALTERNATIVE_BUDGET)[0]
         if error(score) <= reach:
             return effect, error(score)
     return None
