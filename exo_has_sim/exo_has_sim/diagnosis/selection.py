@@ -391,6 +391,7 @@ def hidden_rivals(plant: Plant, steps: Sequence[Sequence[Score]], baseline: Fit,
     into lost motion, as a dead zone or a delay would. So each step's named choice is checked
     against them: each is fitted jointly on top of the step's reference, and again from the
     nominal values where the reference's parameters strayed and the first fit is no rival
+    but left at most :data:`SECOND_START_REACH` times the choice's validated cost
     (:func:`rank` with ``every``).
     Less would miss them: for a 95 N friction in a squat, screening's first-order projection
     judged the friction 70 times worse than none, and a fit from the reference, whose leakage
