@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from exo_has_sim.gait import GaitCycle
+from exo_has_sim.gait import GaitCycle, squat_depth
 
 FloatArray = NDArray[np.float64]
 JOINTS = ('left_hip', 'left_knee', 'right_hip', 'right_knee')
@@ -113,7 +113,7 @@ def joint_angles(plan: TrialPlan, gait: GaitCycle, t: FloatArray,
         right = np.column_stack(gait.angles_at(phase + 0.5))
         motion = np.hstack([left, right]) - np.tile(stand, 2)
     elif plan.motion == 'squat':
-        depth = 0.5 * (1.0 - np.cos(2.0 * math.pi * plan.squat_frequency * times))
+        depth = squat_depth(plan.squat_frequency * times)
         leg = np.column_stack([depth * plan.squat_hip, depth * plan.squat_knee]) - stand
         motion = np.hstack([leg, leg])
     else:

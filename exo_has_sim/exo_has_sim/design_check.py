@@ -1,7 +1,11 @@
 """``exo-has design-check``: every figure of the paper the model can reproduce, side by side.
 
 For each figure: the paper's value, the model's, and a finding that names any discrepancy and
-its cause. ``--json FILE`` writes the same table.
+its cause; then every requirement of the joint's design (:mod:`~exo_has_sim.design_search`)
+with its need, its capacity and its margin. ``--json FILE`` writes the same tables.
+``--search`` searches the cylinder and both joints' linkages against the requirements and says
+where the chosen design departs from the paper's stated figures; ``--plot FILE`` draws each
+joint's feasible region, bore against lever arm.
 """
 
 from __future__ import annotations
@@ -18,6 +22,19 @@ import numpy as np
 from scipy.optimize import brentq
 
 from exo_has_sim import linear
+from exo_has_sim.design_search import (
+    SPEED_SHARE,
+    STRIDE_FREQUENCY,
+    Choice,
+    Design,
+    Margin,
+    demand,
+    lever_at_mid,
+    margins,
+    motions,
+    region,
+    search,
+)
 from exo_has_sim.errors import SimError
 from exo_has_sim.gait import load_gait_cycle
 from exo_has_sim.kinematics import Linkage
@@ -25,7 +42,7 @@ from exo_has_sim.parameters import HasParameters, load_parameters
 
 PAPER_P, PAPER_D = 35.0, 15.0  # section 5.1, units not stated
 PAPER_BANDWIDTH_HZ = 2.54  # section 5.1
-PAPER_STRIDE_FREQUENCY = 0.85  # Hz, section 5.2
+PAPER_STRIDE_FREQUENCY = STRIDE_FREQUENCY  # Hz, section 5.2
 RPM = 2.0 * math.pi / 60.0  # rad/s per r/min
 
 
@@ -133,14 +150,22 @@ def design_check(params: HasParameters) -> list[Row]:
     bw_rad = linear.bandwidth(linear.pd_closed_loop(plant, kp, PAPER_D))
     bw_rpm = linear.bandwidth(linear.pd_closed_loop(plant, PAPER_P * RPM / 1e-3, PAPER_D * RPM))
     bw_d_mm = linear.bandwidth(linear.pd_closed_loop(plant, kp, PAPER_D / 1e-3))
+    def bandwidth_error(bore: float) -> float:
+        other = linear.eq12(params.replace(bore_diameter=bore,
+                                           rod_diameter=bore * params.rod_diameter
+                                           / params.bore_diameter))
+        return linear.bandwidth(linear.pd_closed_loop(other, kp, PAPER_D)) - PAPER_BANDWIDTH_HZ
+    matching = float(brentq(bandwidth_error, 0.005, 0.05, xtol=1e-5))
     rows.append(Row(
         'bandwidth_model', 'closed-loop bandwidth of Eq. 12 under P = 35 (rad/s)/mm, '
         'D = 15 (rad/s)/(m/s)', 'Hz', PAPER_BANDWIDTH_HZ, bw_rad,
         f'{bw_rad:.2f} Hz, {bw_rad / PAPER_BANDWIDTH_HZ - 1:+.0%} from the paper: with P in '
-        f'(rad/s) per mm of error this model comes close to 2.54 Hz (the rest is within the '
-        f'uncertainty of the assumed bore, which sets K); in (r/min)/mm it gives '
-        f'{bw_rpm:.2f} Hz, and D = 15 (rad/s)/(mm/s) would give {bw_d_mm:.0f} Hz, beyond the '
-        'hydraulic resonance, so D must act on m/s (or a filtered rate) and barely matters'))
+        f'(rad/s) per mm of error the bandwidth follows K = D_p / A_A, and a '
+        f"{matching * 1e3:.1f} mm bore would give 2.54 Hz against this file's "
+        f"{params.bore_diameter * 1e3:.0f} mm (the paper's bore is lost with Table 1); in "
+        f'(r/min)/mm it gives {bw_rpm:.2f} Hz, and D = 15 (rad/s)/(mm/s) would give '
+        f'{bw_d_mm:.0f} Hz, beyond the hydraulic resonance, so D must act on m/s (or a filtered '
+        'rate) and barely matters'))
     linkage = Linkage.from_parameters(params)
     gait = load_gait_cycle()
     angles = gait.hip_angle if params.joint_type == 'hip' else gait.knee_angle
@@ -152,7 +177,8 @@ def design_check(params: HasParameters) -> list[Row]:
         f'{stroke * 1e3:.1f} mm against {params.walking_stroke * 1e3:.0f} mm '
         f'({stroke / params.walking_stroke - 1:+.1%}): the paper used '
         'CGA data (not at hand) and its linkage dimensions are lost with Fig. 7 and Table 1, '
-        'so the linkage was chosen for this match; it confirms the geometry, not the data'))
+        'so the linkage was chosen for this match; it confirms the geometry, not the data '
+        "(--search gives a linkage that walks at the paper's cadence within the pump)"))
     # The paper's 140 mm/s is the peak of its walking stroke curve's derivative (section 3.1),
     # the figure its no-load speed was sized for.
     phase = np.linspace(0.0, 1.0, 10_001)
@@ -170,6 +196,97 @@ def design_check(params: HasParameters) -> list[Row]:
         f"would peak at {sine:.3f} m/s: the paper's figure is near a sine's, smoother than "
         "Winter's swing, and its CGA data are not at hand to tell why"))
     return rows
+
+
+def design_margins(params: HasParameters) -> list[Margin]:
+    """Return every requirement of a parameter set's design, with its margin."""
+    linkage = Linkage.from_parameters(params)
+    design = Design(params.bore_diameter, params.rod_diameter, linkage)
+    return margins(design, params, demand(linkage, motions(params.joint_type)))
+
+
+def format_margins(found: Sequence[Margin]) -> str:
+    """Render margins as aligned text: need, capacity, margin, met or missed."""
+    lines = [f'{"constraint":<16} {"need":>11} {"capacity":>11}  {"margin":>7}  unit', '-' * 64]
+    for m in found:
+        verdict = '' if m.met else '  MISSED'
+        lines.append(f'{m.id:<16} {m.need:>11.4g} {m.capacity:>11.4g}  {m.ratio - 1.0:>+7.1%}'
+                     f'  {m.unit}{verdict}')
+        lines.append(f'    {m.text} ({m.kind})')
+    return '\n'.join(lines)
+
+
+def departures(choices: dict[str, Choice], joints: dict[str, HasParameters]) -> list[str]:
+    """Say where the chosen designs depart from the paper's stated figures, with numbers."""
+    out = []
+    for joint, choice in choices.items():
+        params = joints[joint]
+        design, linkage = choice.design, choice.design.linkage
+        gait = load_gait_cycle()
+        walking = gait.hip_angle if joint == 'hip' else gait.knee_angle
+        stroke = float(np.ptp(linkage.cylinder_length(walking)))
+        area = math.pi / 4.0 * design.bore ** 2
+        out.append(f'{joint}: bore {design.bore * 1e3:.0f} mm, rod {design.rod * 1e3:.0f} mm, '
+                   f'pivots r1 {linkage.r1 * 1e3:.0f} mm and r2 {linkage.r2 * 1e3:.0f} mm, lever '
+                   f'arm {lever_at_mid(linkage, params) * 1e3:.1f} mm at mid-range, stroke '
+                   f'{linkage.stroke * 1e3:.1f} mm')
+        if joint == 'hip':
+            walk = next(m for m in choice.margins if m.id == 'walk_speed')
+            needed = walk.need * params.walking_stroke / stroke
+            paper = params.walking_stroke
+            out.append(
+                f"  walking stroke {stroke * 1e3:.1f} mm against the paper's "
+                f'{paper * 1e3:.0f} mm ({stroke / paper - 1:+.0%}): '
+                f"Winter's hip at {STRIDE_FREQUENCY} strides/s over "
+                f'{params.walking_stroke * 1e3:.0f} mm would move the cylinder at up to '
+                f"{needed:.3f} m/s, {needed / params.no_load_speed:.2f} times the paper's "
+                f'{params.no_load_speed} m/s no-load speed; at {params.no_load_speed} m/s that '
+                f'stroke allows {params.no_load_speed / needed * STRIDE_FREQUENCY:.2f} strides/s')
+        speed = params.pump_displacement * params.motor_speed_max / area
+        out.append(f"  no-load speed {speed:.3f} m/s (D_p n_max / A_A) against the paper's "
+                   f'{params.no_load_speed} m/s ({speed / params.no_load_speed - 1:+.0%}); the '
+                   f'tasks use at most {SPEED_SHARE:.0%} of it')
+    return out
+
+
+def plot_region(choices: dict[str, Choice], joints: dict[str, HasParameters],
+                path: Path) -> None:
+    """Draw each joint's feasible region (bore against lever arm at mid-range) to ``path``."""
+    import matplotlib as mpl
+    mpl.use('Agg')
+    import matplotlib.pyplot as plt
+
+    figure, axes = plt.subplots(1, len(choices), figsize=(6.0 * len(choices), 5.0),
+                                squeeze=False)
+    bores = np.linspace(0.008, 0.024, 81)
+    scales = np.geomspace(0.4, 4.0, 81)
+    for ax, (joint, choice) in zip(axes[0], choices.items(), strict=True):
+        params = joints[joint]
+        ratios = region(choice, params, bores, scales)
+        lever = scales * lever_at_mid(choice.design.linkage, params) * 1e3
+        x = bores * 1e3
+        feasible = np.all([r >= 1.0 for r in ratios.values()], axis=0)
+        ax.contourf(x, lever, feasible.astype(float), levels=[0.5, 1.5], colors=['#cde8c5'])
+        for k, (name, ratio) in enumerate(ratios.items()):
+            if np.nanmin(ratio) < 1.0 < np.nanmax(ratio):
+                colour = f'C{k % 10}'
+                ax.contour(x, lever, ratio, levels=[1.0], colors=[colour])
+                ax.plot([], [], color=colour, label=f'{name} limit')
+        chosen = choice.design
+        ax.plot(chosen.bore * 1e3, lever_at_mid(chosen.linkage, params) * 1e3, 'k*',
+                markersize=12, label='chosen')
+        old = Linkage.from_parameters(params)
+        ax.plot(params.bore_diameter * 1e3, lever_at_mid(old, params) * 1e3, 'kx',
+                markersize=9, label='parameters file (its own linkage shape)')
+        ax.set_yscale('log')
+        ax.set_xlabel('bore [mm]')
+        ax.set_ylabel('lever arm at mid-range [mm]')
+        ax.set_title(f'{joint}: feasible region (green), walk at {STRIDE_FREQUENCY} strides/s, '
+                     'squat at 0.5 Hz, 50 kg', fontsize=9)
+        ax.legend(fontsize=7, loc='upper right')
+    figure.tight_layout()
+    figure.savefig(path, dpi=120)
+    plt.close(figure)
 
 
 def format_table(rows: Sequence[Row]) -> str:
@@ -190,16 +307,42 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help='parameter set to check (hip)')
     parser.add_argument('--params', type=Path, help='a parameters file instead of --joint')
     parser.add_argument('--json', type=Path, help='also write the table to this JSON file')
+    parser.add_argument('--search', action='store_true',
+                        help="search the cylinder and both joints' linkages (the parameters "
+                        'files give what the search does not choose: pump, motor, pressures)')
+    parser.add_argument('--plot', type=Path, metavar='FILE',
+                        help='with --search: write the feasible regions to this PNG')
     args = parser.parse_args(argv)
     try:
         params = load_parameters(args.params if args.params else args.joint)
         rows = design_check(params)
-    except SimError as exc:
+        found = design_margins(params)
+        # The given file stands for its joint; the other joint's is the shipped one.
+        joints = {j: params if j == params.joint_type else load_parameters(j)
+                  for j in ('hip', 'knee')} if args.search else {}
+        choices = search(list(joints.values())) if args.search else {}
+    except (SimError, ValueError) as exc:
         print(f'exo-has design-check: {exc}', file=sys.stderr)
         return 1
     print(format_table(rows))
+    print()
+    print(f'requirements of the {params.joint_type} design in {params.joint_type} parameters:')
+    print(format_margins(found))
+    for joint, choice in choices.items():
+        print(f'\nsearched design of the {joint}:')
+        print(format_margins(choice.margins))
+    if choices:
+        print('\nwhere the searched designs depart from the paper:')
+        print('\n'.join(departures(choices, joints)))
+    if args.plot and choices:
+        plot_region(choices, joints, args.plot)
+        print(f'wrote {args.plot}')
     if args.json:
-        document = {'joint_type': params.joint_type, 'rows': [asdict(r) for r in rows]}
+        document = {'joint_type': params.joint_type, 'rows': [asdict(r) for r in rows],
+                    'margins': [asdict(m) | {'ratio': m.ratio, 'met': m.met} for m in found],
+                    'search': {j: {'design': asdict(c.design),
+                                   'margins': [asdict(m) for m in c.margins]}
+                               for j, c in choices.items()}}
         args.json.write_text(json.dumps(document, indent=1) + '\n', encoding='utf-8')
         print(f'wrote {args.json}')
     return 0

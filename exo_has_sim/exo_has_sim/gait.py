@@ -71,6 +71,16 @@ class GaitCycle:
         return np.asarray(hip(percent), dtype=float), np.asarray(knee(percent), dtype=float)
 
 
+def squat_depth(phase: NDArray[np.float64] | float) -> FloatArray:
+    """Share of a squat's depth at phase(s) in cycles: a raised cosine, 0 standing, 1 down.
+
+    No normative squat curve is at hand: hip and knee flex together, with no angular velocity
+    at the top and at the bottom.
+    """
+    return np.asarray(0.5 * (1.0 - np.cos(2.0 * math.pi * np.asarray(phase, dtype=float))),
+                      dtype=float)
+
+
 def load_gait_cycle(path: str | Path = WINTER) -> GaitCycle:
     """Load a gait-cycle table.
 

@@ -20,10 +20,15 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
 from exo_has_sim.errors import ParameterError
 from exo_has_sim.gait import GaitCycle, load_gait_cycle
 from exo_has_sim.kinematics import Linkage
 from exo_has_sim.parameters import HasParameters
+
+FloatArray = NDArray[np.float64]
 
 #: Load of the paper's design simulations and frequency-response tests [kg] (sections 2.4, 5.1).
 PAPER_LOAD_MASS = 50.0
@@ -76,3 +81,55 @@ def default_load_force(params: HasParameters, gait: GaitCycle | None = None,
     moment = mass * peak_extensor_moment(table, params.joint_type)
     lever = float(Linkage.from_parameters(params).lever_arm(standing_angle))
     return moment / lever
+
+
+#: Segments of an adult of 1.75 m [m] (Winter's anthropometry: thigh 0.245, shank 0.246 of
+#: the height).
+THIGH_LENGTH = 0.43
+SHANK_LENGTH = 0.43
+#: Height of a carried load's centre of mass above the hips, on the back [m] (assumed).
+LOAD_HEIGHT = 0.30
+GRAVITY = 9.81  # m/s^2
+
+
+def squat_moments(hip_angle: ArrayLike, knee_angle: ArrayLike,
+                  mass: float) -> tuple[FloatArray, FloatArray]:
+    """Extensor moments [N m] of hip and knee of one leg holding a carried mass in a squat.
+
+    A quasi-static model in the sagittal plane: feet flat, both legs sharing the load's weight,
+    the trunk carrying it at :data:`LOAD_HEIGHT` above the hips, the posture balanced with the
+    load's centre over the ankles. The shank leans forward by the angle that balances it for the
+    given hip and knee flexion; each joint's moment is then half the weight times the horizontal
+    distance from the joint to the load's line (the knee in front of it, the hip behind).
+    The body's own weight is the wearer's to carry, as Winter's moments per kg are scaled by
+    the carried mass in walking.
+
+    Parameters
+    ----------
+    hip_angle, knee_angle : array_like
+        Flexion [rad], knee flexion at least hip flexion's share of it that the balance needs.
+    mass : float
+        Carried mass [kg].
+
+    """
+    hip = np.asarray(hip_angle, dtype=float)
+    knee = np.asarray(knee_angle, dtype=float)
+    # Horizontal positions from the ankle, the shank leaning forward by beta: knee at
+    # l_s sin(beta), hip at that minus l_t sin(knee - beta), the load at the hip plus
+    # h sin(hip - knee + beta). Balance (load over the ankle) is monotonic in beta: bisect.
+    low, high = np.zeros_like(knee), np.maximum(knee, 0.0) + 0.5
+
+    def load_x(beta: FloatArray) -> FloatArray:
+        hip_x = SHANK_LENGTH * np.sin(beta) - THIGH_LENGTH * np.sin(knee - beta)
+        return np.asarray(hip_x + LOAD_HEIGHT * np.sin(hip - knee + beta), dtype=float)
+
+    for _ in range(50):
+        beta = 0.5 * (low + high)
+        ahead = load_x(beta) > 0.0
+        high = np.where(ahead, beta, high)
+        low = np.where(ahead, low, beta)
+    beta = 0.5 * (low + high)
+    knee_x = SHANK_LENGTH * np.sin(beta)
+    hip_x = knee_x - THIGH_LENGTH * np.sin(knee - beta)
+    weight = 0.5 * mass * GRAVITY
+    return np.asarray(-weight * hip_x, dtype=float), np.asarray(weight * knee_x, dtype=float)
