@@ -51,8 +51,9 @@ def record(params, path, seconds=12.0, load=0.0, seed=4):
     t = np.arange(round(seconds / PERIOD)) * PERIOD
     freqs = np.geomspace(0.2, 2.0, 6)
     phases = rng.uniform(0.0, 2.0 * np.pi, 6)
-    amplitudes = 0.012 / (1.0 + freqs)
-    x_ref = 0.065 + np.sin(np.outer(t, 2 * np.pi * freqs) + phases) @ amplitudes
+    # About the middle of the stroke, over about half of it.
+    amplitudes = 0.09 * params.stroke / (1.0 + freqs)
+    x_ref = 0.5 * params.stroke + np.sin(np.outer(t, 2 * np.pi * freqs) + phases) @ amplitudes
     v_ref = np.cos(np.outer(t, 2 * np.pi * freqs) + phases) @ (amplitudes * 2 * np.pi * freqs)
     y0 = model.initial_state(params, x_ref[0], load)
     gains = np.array([[35000.0, 15.0, params.area_a / params.pump_displacement]])

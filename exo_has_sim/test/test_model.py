@@ -23,8 +23,9 @@ def run(params, y0, command, load, duration, period=0.001):
 
 
 def test_the_steady_extension_velocity_is_k_times_the_pump_speed():
-    speed = 200.0
-    y0 = model.initial_state(HIP, 0.02)
+    # A speed that crosses 40 % of the stroke in the 0.4 s, from 10 % of it.
+    speed = 0.4 * HIP.stroke / (linear.velocity_gain(HIP) * 0.4)
+    y0 = model.initial_state(HIP, 0.1 * HIP.stroke)
     result = run(HIP, y0, speed, 0.0, 0.4)
     velocity = result.states[-1, 0, model.V]
     assert velocity == pytest.approx(linear.velocity_gain(HIP) * speed, rel=0.01)
@@ -42,16 +43,17 @@ def test_a_blocked_cylinder_settles_at_the_relief_setting():
 
 
 def test_with_the_motor_stopped_the_external_force_moves_the_cylinder():
-    free = model.initial_state(HIP, 0.08, LOAD, assist=False)
+    middle = 0.6 * HIP.stroke
+    free = model.initial_state(HIP, middle, LOAD, assist=False)
     moved = run(HIP, free, 0.0, 300.0, 0.1).states
-    assert moved[-1, 0, model.X] - 0.08 < -0.005  # free mode: the load pushes it in
+    assert moved[-1, 0, model.X] - middle < -0.005  # free mode: the load pushes it in
     assert model.valve_mode(moved[-1, 0], model.pack(HIP)) == model.VALVE_FREE
     # Quasi-static free-mode speed: A_A p = F + B v with p = -A_e v / G_free.
     expected = -300.0 / (HIP.area_a * HIP.flow_area / HIP.free_conductance + HIP.damping)
     assert moved[-1, 0, model.V] == pytest.approx(expected, rel=0.05)
-    held = model.initial_state(HIP, 0.08, 300.0)
+    held = model.initial_state(HIP, middle, 300.0)
     kept = run(HIP, held, held[model.N], 300.0, 0.1).states
-    assert abs(kept[-1, 0, model.X] - 0.08) < 5e-4  # in assist the same force is held
+    assert abs(kept[-1, 0, model.X] - middle) < 5e-4  # in assist the same force is held
 
 
 def balance_error(states, params):
@@ -80,11 +82,13 @@ def test_the_mass_balance_closes_over_a_run_through_every_valve_mode():
     assert balance_error(reference, params) < 1e-6
 
 
-def track_sine(params, amplitude=0.02, frequency=1.0, duration=3.0, period=0.001):
+def track_sine(params, share=0.15, frequency=1.0, duration=3.0, period=0.001):
+    # About the middle of the stroke, a share of it either way.
+    middle, amplitude = 0.5 * params.stroke, share * params.stroke
     t = np.arange(round(duration / period)) * period
-    x_ref = 0.065 + amplitude * np.sin(2 * math.pi * frequency * t)
+    x_ref = middle + amplitude * np.sin(2 * math.pi * frequency * t)
     v_ref = amplitude * 2 * math.pi * frequency * np.cos(2 * math.pi * frequency * t)
-    y0 = model.initial_state(params, 0.065, LOAD)
+    y0 = model.initial_state(params, middle, LOAD)
     gains = np.array([[35e3, 0.0, 1.0 / linear.velocity_gain(params)]])
     result = simulate_closed_loop([params], y0[None, :], x_ref[:, None], v_ref[:, None],
                                   np.full(len(t), LOAD), gains, period)
@@ -108,20 +112,23 @@ def test_friction_adds_pressure_hysteresis_with_the_sign_of_velocity():
 def test_a_pump_dead_zone_stops_small_commands():
     deadzone = 20.0
     params = HIP.with_effects(pump_deadzone=deadzone)
-    y0 = model.initial_state(HIP, 0.05)
-    still = run(params, y0, 0.5 * deadzone, 0.0, 0.5).states[-1, 0, model.X] - 0.05
-    moving = run(HIP, y0, 0.5 * deadzone, 0.0, 0.5).states[-1, 0, model.X] - 0.05
+    start = 0.4 * HIP.stroke
+    y0 = model.initial_state(HIP, start)
+    still = run(params, y0, 0.5 * deadzone, 0.0, 0.5).states[-1, 0, model.X] - start
+    moving = run(HIP, y0, 0.5 * deadzone, 0.0, 0.5).states[-1, 0, model.X] - start
     assert abs(still) < 1e-5 and moving > 1e-3
     # Beyond the dead zone the pump delivers the excess speed: dz + 10 moves as 10 without.
-    beyond = run(params, y0, deadzone + 0.5 * deadzone, 0.0, 0.5).states[-1, 0, model.X] - 0.05
+    beyond = run(params, y0, deadzone + 0.5 * deadzone, 0.0, 0.5).states[-1, 0, model.X] - start
     assert beyond == pytest.approx(moving, rel=0.02)
 
 
 def command_to_velocity_lag(params, period=0.001, duration=4.0):
     rng = np.random.default_rng(3)
-    steps = rng.normal(0.0, 150.0, round(duration / 0.05)).repeat(round(0.05 / period))
+    # Speeds whose spread crosses about half the stroke in a second, from its middle.
+    spread = 0.47 * params.stroke / linear.velocity_gain(params)
+    steps = rng.normal(0.0, spread, round(duration / 0.05)).repeat(round(0.05 / period))
     # Under the rig's load, so that retracting never draws a vapour pocket.
-    y0 = model.initial_state(params, 0.065, LOAD)
+    y0 = model.initial_state(params, 0.5 * params.stroke, LOAD)
     velocity = run(params, y0, steps, LOAD, duration, period).states[1:, 0, model.V]
     a = steps - steps.mean()
     b = velocity - velocity.mean()
@@ -139,9 +146,10 @@ def test_a_transport_delay_shows_as_a_lag_in_the_cross_correlation():
 def test_quadratic_leakage_slows_the_loaded_cylinder_by_the_extra_leak():
     coefficient = 2e-21
     params = HIP.with_effects(quadratic_leakage=coefficient)
-    y0 = model.initial_state(HIP, 0.03, 4 * LOAD)
-    base = run(HIP, y0, 200.0, 4 * LOAD, 0.4).states[-1, 0]
-    leaky = run(params, y0, 200.0, 4 * LOAD, 0.4).states[-1, 0]
+    speed = 0.4 * HIP.stroke / (linear.velocity_gain(HIP) * 0.4)
+    y0 = model.initial_state(HIP, 0.2 * HIP.stroke, 4 * LOAD)
+    base = run(HIP, y0, speed, 4 * LOAD, 0.4).states[-1, 0]
+    leaky = run(params, y0, speed, 4 * LOAD, 0.4).states[-1, 0]
     extra = coefficient * leaky[model.PA] ** 2
     drop = base[model.V] - leaky[model.V]
     assert drop == pytest.approx(extra / (HIP.flow_area + HIP.pump_leakage * HIP.damping
@@ -208,7 +216,7 @@ def test_the_analytic_jacobian_is_the_derivative_of_the_model(damping_ratio):
 
 def test_a_vapour_pocket_must_be_refilled_before_the_pressure_rises_again():
     floor = HIP.cavitation_pressure
-    y0 = model.initial_state(HIP, 0.08, 50.0)
+    y0 = model.initial_state(HIP, 0.8 * HIP.stroke, 50.0)
     period = 0.001
     commands = np.concatenate([np.full(100, -400.0), np.full(600, 100.0)])
     result = simulate_open_loop([HIP], y0[None, :], commands[:, None],
@@ -234,7 +242,7 @@ def test_a_loaded_valve_stays_in_assist_through_a_reversal_and_frees_once_unload
     commands = np.concatenate([np.full(40, 60.0), [0.3], np.full(40, -60.0), np.zeros(200),
                                np.zeros(200)])
     loads = np.concatenate([np.full(281, LOAD), np.zeros(200)])
-    y0 = model.initial_state(HIP, 0.05, LOAD)
+    y0 = model.initial_state(HIP, 0.4 * HIP.stroke, LOAD)
     states = simulate_open_loop([HIP], y0[None, :], commands[:, None], loads, period).states
     prm = model.pack(HIP)
     modes = [model.valve_mode(s, prm) for s in states[:, 0]]

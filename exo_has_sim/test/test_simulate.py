@@ -94,11 +94,12 @@ def test_stepping_a_plant_matches_the_batch_simulation(delay):
 
 def test_a_closed_loop_transport_delay_is_applied_exactly_not_rounded_to_samples():
     period = 0.005
-    x_ref = np.full(200, 0.06)
+    middle = 0.5 * HIP.stroke  # a 10 mm step across the middle of the stroke
+    x_ref = np.full(200, middle + 0.005)
     v_ref = np.zeros(200)
     loads = np.zeros(200)
     gains = np.array([[35e3, 0.0, 0.0]])
-    y0 = model.initial_state(HIP, 0.05)[None, :]
+    y0 = model.initial_state(HIP, middle - 0.005)[None, :]
     results = {}
     for delay in (0.0, 0.0024, 0.0049):
         params = HIP.with_effects(transport_delay=delay)
