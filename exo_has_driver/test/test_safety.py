@@ -24,7 +24,9 @@ from exo_has_sim.valve import ValveMode
 PARAMS = {'hip': load_parameters('hip'), 'knee': load_parameters('knee')}
 LINKAGE = {kind: Linkage.from_parameters(params) for kind, params in PARAMS.items()}
 PERIOD = 0.005  # s, the 200 Hz control period
-MID = 0.065  # m, mid stroke
+STROKE = PARAMS['hip'].stroke  # m, the same cylinder at every joint (one module)
+assert PARAMS['knee'].stroke == STROKE
+MID = 0.5 * STROKE  # m
 RELIEF = 18.0e6  # Pa, both parameter sets
 
 
@@ -82,7 +84,7 @@ def test_limits_come_from_the_parameter_sets_and_the_control_period():
     limits = SafetyLimits.from_parameters(PARAMS['hip'])
     assert limits.relief_pressure == RELIEF
     assert limits.warning_pressure == pytest.approx(16.2e6)
-    assert limits.stroke == 0.13
+    assert limits.stroke == STROKE
     assert limits.state_timeout == limits.command_timeout == pytest.approx(0.05)
     assert limits.tracking_error_limit == pytest.approx(math.radians(20.0))
     slow = SafetyLimits.from_parameters(PARAMS['knee'], stale_periods=4, control_rate=100.0)
@@ -165,20 +167,22 @@ def test_over_pressure_warns_once_and_again_only_after_it_has_cleared():
 
 def test_reaching_a_stroke_end_is_an_error_once_per_entry():
     watchdog, t = running()
-    positions = [0.1297, 0.1299, 0.1298, 0.12, 0.0004, 0.0001, 0.05]
+    # Near the extended end (within the 0.5 mm margin), back in, near the retracted end, back.
+    positions = [STROKE - 0.0003, STROKE - 0.0001, STROKE - 0.0002, STROKE - 0.01, 0.0004,
+                 0.0001, MID]
     raised = [watchdog.on_state('left_hip', t + i * PERIOD, x, 5.0e6, 1.0e6, ValveMode.ASSIST)
               for i, x in enumerate(positions)]
     assert [len(events) for events in raised] == [1, 0, 0, 0, 1, 0, 0]
     extended, retracted = raised[0][0], raised[4][0]
     assert (extended.kind, extended.severity) == (SafetyKind.STROKE_END, Severity.ERROR)
-    assert (extended.value, extended.limit) == (0.1297, 0.13)
+    assert (extended.value, extended.limit) == (pytest.approx(STROKE - 0.0003), STROKE)
     assert (retracted.value, retracted.limit) == (0.0004, 0.0)
     assert not watchdog.stopped
 
 
 def tracking_states(watchdog, joint, start, duration, error):
     """Feed states of ``joint`` off a mid-range reference by ``error`` [rad]; return events."""
-    reference = {'hip': 0.3, 'knee': 1.0}[kind_of(joint)]
+    reference = {'hip': 0.3, 'knee': 0.6}[kind_of(joint)]
     position = float(LINKAGE[kind_of(joint)].position(reference - error))
     events = []
     for t in np.arange(start, start + duration, PERIOD):
@@ -244,7 +248,7 @@ def test_a_nan_or_infinite_command_is_an_invalid_command(speed):
     (math.nan, 5.0e6, 1.0e6, ValveMode.ASSIST, math.nan),
     (MID, math.inf, 1.0e6, ValveMode.ASSIST, math.nan),
     (MID, 5.0e6, math.nan, ValveMode.ASSIST, math.nan),
-    (0.14, 5.0e6, 1.0e6, ValveMode.ASSIST, 0.132),
+    (STROKE + 0.01, 5.0e6, 1.0e6, ValveMode.ASSIST, STROKE + 0.002),
     (MID, -0.5e6, 1.0e6, ValveMode.ASSIST, -0.12e6),
     (MID, 5.0e6, 1.0e6, 7, 2.0),
 ])
@@ -419,7 +423,7 @@ def test_a_lost_reference_latches_one_hold_an_error_not_a_stop():
     assert watchdog.check_reference(last + 1.0, source) == []  # once while it lasts
     assert feed(watchdog, last + 1.0) == []  # the robot side itself is sound
     # The reference comes back, far from where the joints hold: no tracking error while held.
-    assert tracking_states(watchdog, 'left_knee', last + 1.0, 0.5, 0.8) == []
+    assert tracking_states(watchdog, 'left_knee', last + 1.0, 0.5, -0.6) == []
     assert watchdog.holding and not watchdog.stopped
 
 

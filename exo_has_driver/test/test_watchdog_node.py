@@ -21,6 +21,9 @@ from exo_has_runtime.topics import (
     has_command_topic,
     has_state_topic,
 )
+from exo_has_sim.parameters import load_parameters
+
+MID = 0.5 * load_parameters('hip').stroke  # m, mid stroke (every joint's cylinder alike)
 
 WATCHDOG = 'exo_has_driver.watchdog'
 PERIOD = 0.005  # s: the rig plays plants and controllers at 200 Hz
@@ -49,7 +52,7 @@ class Rig:
         self.executor = EventsExecutor(context=context)
         self.executor.add_node(self.node)
         self.joints = joints
-        self.states = {joint: {'position': 0.065, 'pressure_a': 5.0e6, 'pressure_b': 1.0e6,
+        self.states = {joint: {'position': MID, 'pressure_a': 5.0e6, 'pressure_b': 1.0e6,
                                'valve_mode': HasState.VALVE_ASSIST} for joint in joints}
         self.speeds = dict.fromkeys(joints, 10.0)
         self.silent = set()
@@ -289,7 +292,7 @@ def test_messages_taken_after_a_hold_up_inside_a_check_are_dated_when_they_came(
     node = Watchdog(context=ros_context)
     try:
         queued = [Taken(has_state_topic(joint), HasState(
-            joint=joint, position=0.065, pressure_a=5.0e6, pressure_b=1.0e6,
+            joint=joint, position=MID, pressure_a=5.0e6, pressure_b=1.0e6,
             valve_mode=HasState.VALVE_ASSIST), time.time_ns()) for joint in JOINT_NAMES]
 
         def held_up_drain():
