@@ -45,12 +45,11 @@ from exo_has_sim.parameters import HasParameters
 
 FloatArray = NDArray[np.float64]
 
-#: The paper's tasks (section 5.2) and loads (2.4: design simulations; 5.2: tracking tests).
+#: The paper's tasks (section 5.2) and the load of its design simulations (2.4).
 STRIDE_FREQUENCY = 0.85  # Hz
 SQUAT_FREQUENCY = 0.5  # Hz
 SQUAT_DEPTH = {'hip': math.radians(40.0), 'knee': math.radians(70.0)}  # rad, the demo's squat
 DESIGN_MASS = 50.0  # kg
-TRACKING_MASS = 25.0  # kg
 #: Share of the pump's top speed a reference may ask: the PD controller adds its correction
 #: on top, and a motor at its limit cannot correct (the knee's errors of issue 26).
 SPEED_SHARE = 0.8
