@@ -66,6 +66,7 @@ from common import describe_machine, write_results
 
 from exo_has_sim.diagnosis.cli import STRUCTURE_STATUS
 from exo_has_sim.diagnosis.cli import main as diagnose_main
+from exo_has_sim.diagnosis.structure import normalised_error
 from exo_has_sim.parameters import load_parameters
 
 DURATION = 30.0  # s
@@ -162,7 +163,7 @@ def diagnose_draw(task: Task, quiet: bool = True) -> dict[str, Any]:
             'direction_gain': next((f['value'] for f in judged.get('findings', [])
                                     if f['check'] == 'direction_gain'), None),
             'suggestion': judged.get('suggestion'), 'alike': judged.get('alike', []),
-            'model_error': _error(doc.get('fits', {}).get('baseline', {})),
+            'model_error': _model_error(doc.get('fits', {}).get('baseline', {})),
             'alternatives': {a['name']: a['error'] for a in judged.get('alternatives', [])},
             'fits': doc.get('fits', {}).get('extended', {}),
             'causes': doc.get('causes', []),
@@ -179,12 +180,9 @@ def diagnose_draw(task: Task, quiet: bool = True) -> dict[str, Any]:
             'wall_s': round(wall, 1)}
 
 
-def _error(fits: dict[str, float]) -> float | None:
-    """Return the normalised error of validated fits [%], as structures are ranked by it."""
-    if not fits:
-        return None
-    return float(np.exp(np.mean([np.log(max(1.0 - fit / 100.0, 1e-6))
-                                 for fit in fits.values()])))
+def _model_error(fits: dict[str, float]) -> float | None:
+    """Return the normalised error of the baseline's validated fits, None without them."""
+    return normalised_error(fits, tuple(fits)) if fits else None
 
 
 def run_tasks(tasks: Sequence[Task],

@@ -219,10 +219,10 @@ def format_margins(found: Sequence[Margin]) -> str:
 def departures(choices: dict[str, Choice], joints: dict[str, HasParameters]) -> list[str]:
     """Say where the chosen designs depart from the paper's stated figures, with numbers."""
     out = []
+    gait = load_gait_cycle()
     for joint, choice in choices.items():
         params = joints[joint]
         design, linkage = choice.design, choice.design.linkage
-        gait = load_gait_cycle()
         walking = gait.hip_angle if joint == 'hip' else gait.knee_angle
         stroke = float(np.ptp(linkage.cylinder_length(walking)))
         area = math.pi / 4.0 * design.bore ** 2

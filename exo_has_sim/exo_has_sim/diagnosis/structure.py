@@ -42,7 +42,7 @@ first").
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -686,7 +686,8 @@ def settle_ambiguous(plant: Plant, judgement: Judgement, baseline: Fit, validati
     if not isinstance(plant, HasPlant) or [f.check for f in failed] != ['direction_gain']:
         return judgement
     tried = try_structures(plant, judgement, windows, progress)
-    best, own = tried.suggestion, _error(output_fits(plant, validation), plant.outputs)
+    best = tried.suggestion
+    own = normalised_error(output_fits(plant, validation), plant.outputs)
     pressure = plant.measurement.has('pressure_a')
     if best is None or best.error > AMBIGUOUS_GAIN * own:
         rival = None
@@ -724,9 +725,8 @@ def _rival_effect(plant: HasPlant, best: Alternative, baseline: Fit, validation:
     Each is fitted jointly with the baseline's parameters (:func:`rank` with ``every``:
     from the nominal values too where the baseline strayed and the first fit came within
     :data:`~exo_has_sim.diagnosis.selection.SECOND_START_REACH` of the cost aimed at) on the
-    budget ``best`` had
-    (:data:`ALTERNATIVE_BUDGET`), until one has at most ``best``'s error over
-    :data:`AMBIGUOUS_GAIN`.
+    budget ``best`` had (:data:`ALTERNATIVE_BUDGET`), until one has at most ``best``'s error
+    over :data:`AMBIGUOUS_GAIN`.
 
     Returns
     -------
@@ -739,7 +739,7 @@ def _rival_effect(plant: HasPlant, best: Alternative, baseline: Fit, validation:
     near = math.sqrt(SECOND_START_REACH) * reach
 
     def error(score: Score) -> float:
-        return _error(output_fits(plant, score.validation), plant.outputs)
+        return normalised_error(output_fits(plant, score.validation), plant.outputs)
 
     if progress:
         progress(f'  {best.name}: the model with each effect, against it')
@@ -752,7 +752,11 @@ def _rival_effect(plant: HasPlant, best: Alternative, baseline: Fit, validation:
     return None
 
 
-def _error(fits: dict[str, float], outputs: Sequence[str]) -> float:
+def normalised_error(fits: Mapping[str, float], outputs: Sequence[str]) -> float:
+    """Return the geometric mean of ``1 - fit / 100`` over the ``outputs`` that ``fits`` has.
+
+    Structures are ranked by it (validated fits [%] per output); infinite where none is shared.
+    """
     shared = [max(1.0 - fits[o] / 100.0, 1e-6) for o in outputs if o in fits]
     return math.exp(float(np.mean(np.log(shared)))) if shared else math.inf
 
@@ -833,7 +837,8 @@ def try_structures(plant: HasPlant, judgement: Judgement, windows: Windows,
         validation = evaluate(other, [fit.values], windows.validation_span, weights)[0]
         fits = output_fits(other, validation)
         own = judge(other, fit, validation, windows.span)
-        alternatives.append(Alternative(name, title, fits, _error(fits, plant.outputs),
+        error = normalised_error(fits, plant.outputs)
+        alternatives.append(Alternative(name, title, fits, error,
                                         {p.name: fit.values[p.name] for p in fit.free},
                                         own.findings))
         if progress:
