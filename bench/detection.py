@@ -63,6 +63,7 @@ import third_rig
 import third_truth_plant as plant_c
 import truth_plant as plant_a
 from common import describe_machine, write_results
+from rigs import rig_file
 
 from exo_has_sim.diagnosis.cli import STRUCTURE_STATUS
 from exo_has_sim.diagnosis.cli import main as diagnose_main
@@ -141,7 +142,8 @@ def diagnose_draw(task: Task, quiet: bool = True) -> dict[str, Any]:
     else:
         draw = _draw(plant, seed, effect, size, duration)
         columns = plant_a.COLUMNS if sensors == 'full' else POSITION_ONLY
-        arguments = ['--joint', draw.joint_type, '--load-mass', f'{LOAD_MASS}']
+        arguments = ['--joint', draw.joint_type, '--params', str(rig_file(draw.joint_type)),
+                     '--load-mass', f'{LOAD_MASS}']
     table = np.column_stack([draw.columns[name] for name in columns])
     np.savetxt(path, table, fmt='%.17g', delimiter=',', header=','.join(columns), comments='')
     out = path.with_suffix('.json')
@@ -339,7 +341,7 @@ def low_relief(count: int, sensors: str, jobs: int) -> None:
     ``count`` draws, the crack pressures spread over :data:`LOW_RELIEF_SHARES` of the
     parameters file's setting; the share of them that name the valve.
     """
-    setting = float(load_parameters('hip').relief_pressure)
+    setting = float(load_parameters(rig_file('hip')).relief_pressure)
     low, high = LOW_RELIEF_SHARES
     shares = np.linspace(low, high, count) if count > 1 else np.array([low])
     with tempfile.TemporaryDirectory() as folder:

@@ -38,8 +38,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
-
-from exo_has_sim.parameters import load_parameters
+from rigs import rig_parameters
 
 FloatArray = NDArray[np.float64]
 
@@ -144,7 +143,7 @@ def nominal_plant(joint_type: str, load_mass: float = 50.0) -> dict[str, float]:
         Every constant the simulation needs, SI.
 
     """
-    params = load_parameters(joint_type)
+    params = rig_parameters(joint_type)
     area_a = math.pi / 4.0 * params.bore_diameter**2
     area_b = math.pi / 4.0 * (params.bore_diameter**2 - params.rod_diameter**2)
     zeta = 0.75

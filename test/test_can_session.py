@@ -26,14 +26,12 @@ unheard for 0.155 s (FATAL, every joint stopped; an ad hoc session with this fil
 2026-11-26); under SCHED_FIFO the state samples came at most 18 ms apart and the session
 ended with no fatal event.
 
-The walk strides at 0.4 Hz, not the paper's 0.85 Hz: this file tests the driver's path,
-and at 0.85 Hz the knee cylinder is asked for 0.305 m/s against the 0.172 m/s the pump gives
-at 4000 r/min (``exo-has design-check --joint knee``: enough up to 0.48 strides/s), so the
-knee's error is the growing lag of a saturated motor, which every late sample lengthens. At
-100 Hz on 2026-11-26 its peaks reached 32.2 deg here (bench/closed_loop.py
---stride-frequency 0.85) and 38.5 deg on the CI machine (a failed run). At 0.4 Hz the
-knee's steady walk asks 0.143 m/s. The paper's walk is tracked by the plant-node sessions at
-200 Hz (test_session.py).
+The walk strides at the paper's 0.85 Hz: the searched design of issue 26 keeps its motors
+below their top speed there (``exo-has design-check --search``). The simulated devices carry
+constant loads (``SessionConfig.load_mass``; they have no gait phase), so the knee carries
+its stance load through the swing as well, and at 100 Hz the loop closes through up to two
+periods of delay: knee peaks of 9.4-10.0 deg in three sessions here (2026-11-27), hips
+2.6, against 3.5 and 0.9 deg in the plant-node sessions under loads that follow the gait.
 """
 
 from __future__ import annotations
@@ -41,31 +39,66 @@ from __future__ import annotations
 import re
 import time
 
+import numpy as np
 import pytest
 from session_observer import Observer, observed_session, read_so_far
 
 from exo_has_control.analysis import rates, tracking
+from exo_has_control.pd import PdGains
 from exo_has_control.report import segments_of
 from exo_has_control.session import Session, SessionConfig
-from exo_has_runtime.joints import JOINT_NAMES
+from exo_has_runtime.joints import JOINT_NAMES, joint_type_of
+from exo_has_sim import model
+from exo_has_sim.gait import load_gait_cycle
+from exo_has_sim.kinematics import Linkage
+from exo_has_sim.loads import default_load_force
+from exo_has_sim.parameters import load_parameters
+from exo_has_sim.simulate import simulate_closed_loop
 
 MOTIONS, DURATIONS = ('walk', 'squat'), (8.0, 8.0)
 RATE = 100.0  # Hz: see the module docstring
-STRIDE_FREQUENCY = 0.4  # Hz: see the module docstring
+STRIDE_FREQUENCY = 0.85  # Hz: see the module docstring
 REALTIME_PRIORITY = 20  # SCHED_FIFO, under the kernel's threaded interrupts at 50
-# The walk is judged after its start ramp (1 s). The knees sink under their load while the
-# driver starts up, and stand 12 to 17 deg flexed when the first reference (0 deg) comes:
-# that start tests the motors' top speed, not the driver's path.
-WALK_START = 1.0  # s
+# The walk is judged from 3 s. The joints sink under their constant loads while the driver
+# starts up (free valves): 30-36 deg with the searched design's small bore, against 12-17 deg
+# before it, and rejoin the reference at the controller's rejoin speed (15 mm/s of cylinder,
+# exo_has_control.tracking), which took a hip until 2.2 s into the walk in one session here.
+WALK_START = 3.0  # s
 WINDOWS = [(name, start + (WALK_START if name.endswith('walk') else 0.0), end)
            for name, start, end in segments_of(MOTIONS, DURATIONS)]
-# A drive applies a command at the SYNC after it arrives, and the driver publishes a sample at
-# its tick after the SYNC: at 100 Hz up to two 10 ms periods of delay in the loop. Worst peaks
-# of three sessions each under these conditions (bench/closed_loop.py, bench/README.md,
-# 2026-11-26): hips 1.25 deg, knees 4.26 deg; with a process spinning on one of the two cores,
-# 2.35 and 4.61 deg. A loop that does not close through the driver misses by tens of degrees.
-HIP_PEAK = 4.0  # deg
-KNEE_PEAK = 12.0  # deg
+# A drive applies a command at the SYNC after it arrives, the driver publishes a sample at its
+# tick after the SYNC, and the controller answers at its own tick: at 100 Hz up to three 10 ms
+# periods between a position and the flow it commands, which sessions draw differently
+# (2026-11-27, at 0.85 strides/s: knees 8.9-10.3 deg in five sessions, 13.0 in a suite run;
+# no stall in any). The model walks the same with the delay as a transport delay: knees 9.4
+# deg at 20 ms, 14.1 at 30 ms, hips 3.0 and 3.7, matching the sessions' figures and the
+# asymmetry of their errors. The bounds are the model's at three periods plus a degree
+# (loop_delay_peak); a loop that does not close through the driver misses by tens of degrees.
+LOOP_DELAY = 3.0 / RATE  # s
+
+
+def loop_delay_peak(kind: str, delay: float) -> float:
+    """Peak walking error [deg] of the model's joint under the devices' load, delayed loop."""
+    params = load_parameters(kind)
+    linkage = Linkage.from_parameters(params)
+    gait = load_gait_cycle()
+    period = 1.0 / RATE
+    t = np.arange(round(8.0 / period)) * period
+    hip, knee = gait.angles_at(STRIDE_FREQUENCY * t)
+    angle = hip if kind == 'hip' else knee
+    x_ref = np.asarray(linkage.position(angle), dtype=float)
+    load = default_load_force(params, mass=SessionConfig().load_mass[kind])
+    delayed = params.with_effects(transport_delay=delay)
+    gains = PdGains.paper(params)
+    y0 = model.initial_state(delayed, float(x_ref[0]), load)
+    run = simulate_closed_loop([delayed], y0[None], x_ref[:, None],
+                               np.gradient(x_ref, period)[:, None], np.full(len(t), load),
+                               np.array([[gains.kp, gains.kd, gains.kff]]), period)
+    position = np.clip(run.states[1:, 0, model.X], 0.0, params.stroke)
+    error = np.degrees(linkage.angle(position) - angle)
+    return float(np.abs(error[t > 2.0]).max())
+
+
 FAULT_BOUND = 0.25  # s: injection to the driver's FATAL event (a few 10 ms cycles + scheduling)
 STOP_BOUND = 0.5  # s: injection to every motor reported below STOPPED_SPEED
 STOPPED_SPEED = 2.0  # rad/s
@@ -91,8 +124,10 @@ def recorded(session):
 def test_the_joints_track_through_the_driver_within_their_bounds(recorded):
     rows = tracking(recorded, WINDOWS)
     assert len(rows) == 8
+    bounds = {kind: loop_delay_peak(kind, LOOP_DELAY) + 1.0 for kind in ('hip', 'knee')}
+    assert bounds['knee'] < 16.0 and bounds['hip'] < 5.0  # deg: 15.1 and 4.7 measured here
     for row in rows:
-        assert row.peak <= (HIP_PEAK if row.joint.endswith('hip') else KNEE_PEAK), row
+        assert row.peak <= bounds[joint_type_of(row.joint)], (row, bounds)
 
 
 def test_walking_and_squatting_through_the_driver_raise_no_fatal_event(recorded):

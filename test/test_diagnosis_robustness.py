@@ -13,14 +13,14 @@ import re
 
 import pytest
 import second_truth_plant as plant_b
+from rigs import rig_file
 
 from exo_has_sim.diagnosis.cli import STRUCTURE_STATUS, main
-from exo_has_sim.parameters import CONFIG_DIR
 
 
 def params_file(tmp_path, name, **values):
-    """Write the hip's parameters file with some values replaced; return its path."""
-    text = (CONFIG_DIR / 'hip.yaml').read_text()
+    """Write the bench's hip file with some values replaced; return its path."""
+    text = rig_file('hip').read_text()
     for key, value in values.items():
         text, count = re.subn(rf'^(      {key}): .*$', rf'\g<1>: {value}', text, count=1,
                               flags=re.MULTILINE)

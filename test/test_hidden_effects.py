@@ -30,6 +30,7 @@ import time
 import pytest
 import second_truth_plant as sp
 import truth_plant as tp
+from rigs import rig_file
 
 from exo_has_sim.diagnosis.cli import STRUCTURE_STATUS, main
 
@@ -40,8 +41,8 @@ FIRST_SEED = PLANTS[0][2]
 
 
 def diagnose_csv(path, joint_type, load_mass, out):
-    code = main([str(path), '--joint', joint_type, '--load-mass', str(load_mass), '--json',
-                 str(out), '-q'])
+    code = main([str(path), '--joint', joint_type, '--params', str(rig_file(joint_type)),
+                 '--load-mass', str(load_mass), '--json', str(out), '-q'])
     # A verdict that the model's structure does not describe the data names no cause: on
     # these plants, which the structure does describe, it counts as a miss (and as a false
     # alarm on a draw without an effect).

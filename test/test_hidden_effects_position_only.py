@@ -35,6 +35,7 @@ import numpy as np
 import pytest
 import second_truth_plant as sp
 import truth_plant as tp
+from rigs import rig_file
 
 from exo_has_sim.diagnosis.cli import main
 from exo_has_sim.diagnosis.effects import EFFECTS
@@ -67,8 +68,8 @@ def run_draw(task):
     table = np.column_stack([draw.columns[name] for name in KEPT])
     np.savetxt(path, table, fmt='%.17g', delimiter=',', header=','.join(KEPT), comments='')
     out = folder / f'position_only_{seed}.json'
-    code = main([str(path), '--joint', draw.joint_type, '--load-mass', '50', '--json', str(out),
-                 '-q'])
+    code = main([str(path), '--joint', draw.joint_type, '--params', str(rig_file(draw.joint_type)),
+                 '--load-mass', '50', '--json', str(out), '-q'])
     assert code == 0
     return {'seed': seed, 'effect': effect, 'size': draw.size,
             'doc': json.loads(out.read_text())}

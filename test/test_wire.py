@@ -31,6 +31,11 @@ from exo_has_runtime.testing.processes import NodeProcess
 
 #: Every exo_has_msgs type and JointState, each field set, none to its default where avoidable.
 MESSAGES = {
+    'exo_has_msgs/msg/GaitPhase': {
+        'header': {'stamp': {'sec': 1_764_000_004, 'nanosec': 7}, 'frame_id': ''},
+        'motion': 1, 'phase': 0.625, 'amplitude': 0.5,
+        'joints': ['left_hip', 'left_knee', 'right_hip', 'right_knee'],
+        'moment_per_mass': [0.4, -0.25, -0.1, 0.9]},
     'exo_has_msgs/msg/HasCommand': {
         'header': {'stamp': {'sec': 1_764_000_003, 'nanosec': 5}, 'frame_id': ''},
         'joint': 'left_hip', 'motor_speed': -418.879, 'enable': True},
@@ -68,7 +73,7 @@ def typestore():
         types.update(get_types_from_msg(path.read_text(encoding='utf-8'),
                                         f'exo_has_msgs/msg/{path.stem}'))
     assert sorted(types) == [f'exo_has_msgs/msg/{n}'
-                             for n in ('HasCommand', 'HasState', 'SafetyEvent')]
+                             for n in ('GaitPhase', 'HasCommand', 'HasState', 'SafetyEvent')]
     store.register(types)
     return store
 

@@ -4,7 +4,7 @@ This module exists for the acceptance test of ``exo-has diagnose``: that test mu
 the project's model against itself, so the plant here is written from the paper (Sun et al.
 2021, sections 2-3, Eqs. 2-10) without importing or copying ``exo_has_sim.model`` or
 ``exo_has_sim.simulate``. Only data are taken from the project: the nominal parameter sets
-(``exo_has_sim.parameters.load_parameters``) and, for the walking reference, Winter's gait table
+(the bench's files, ``test/rigs.py``) and, for the walking reference, Winter's gait table
 through the joint linkage (``exo_has_sim.gait``, ``exo_has_sim.kinematics``).
 
 Plant
@@ -86,10 +86,11 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
+from rigs import rig_parameters
 
 from exo_has_sim.gait import GaitCycle, load_gait_cycle
 from exo_has_sim.kinematics import Linkage
-from exo_has_sim.parameters import HasParameters, load_parameters
+from exo_has_sim.parameters import HasParameters
 
 FloatArray = NDArray[np.float64]
 
@@ -926,12 +927,12 @@ _NOMINAL: dict[str, HasParameters] = {}
 
 
 def nominal_parameters(joint_type: str) -> HasParameters:
-    """Return the nominal parameter set of a joint type (the project's parameter files)."""
+    """Return the nominal parameter set of a joint type (the bench's files, test/rigs.py)."""
     if joint_type not in JOINT_TYPES:
         msg = f'joint_type must be one of {JOINT_TYPES}, got {joint_type!r}'
         raise ValueError(msg)
     if joint_type not in _NOMINAL:
-        _NOMINAL[joint_type] = load_parameters(joint_type)
+        _NOMINAL[joint_type] = rig_parameters(joint_type)
     return _NOMINAL[joint_type]
 
 

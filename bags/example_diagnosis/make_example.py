@@ -26,6 +26,7 @@ ROOT = HERE.parents[1]
 sys.path.insert(0, str(ROOT / 'test'))
 
 import truth_plant as tp  # noqa: E402
+from rigs import rig_file  # noqa: E402
 
 from exo_has_runtime.bag import BagWriter, default_typestore, ensure_message_type  # noqa: E402
 from exo_has_sim.diagnosis.cli import main  # noqa: E402
@@ -109,7 +110,8 @@ def make() -> int:
     (here / 'truth.txt').write_text(
         'Hidden in the session (not read by the diagnosis):\n'
         + '\n'.join(f'{k}: {v}' for k, v in truth.items()) + '\n', encoding='utf-8')
-    return main([str(bag), '--joint', JOINT, '--load-mass', str(draw.load_mass), '--report',
+    return main([str(bag), '--joint', JOINT, '--params', str(rig_file('hip')),
+                 '--load-mass', str(draw.load_mass), '--report',
                  str(here / 'report'), '--json', str(here / 'diagnosis.json')])
 
 

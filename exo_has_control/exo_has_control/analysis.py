@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -19,13 +19,14 @@ from numpy.typing import NDArray
 from exo_has_runtime.bag import default_typestore, read_messages
 from exo_has_runtime.joints import JOINT_NAMES, joint_type_of
 from exo_has_runtime.topics import (
+    GAIT_PHASE_TOPIC,
     JOINT_REFERENCE_TOPIC,
     SAFETY_EVENT_TOPIC,
     has_command_topic,
     has_state_topic,
 )
 from exo_has_sim.kinematics import Linkage
-from exo_has_sim.parameters import load_parameters
+from exo_has_sim.parameters import HasParameters, load_parameters
 
 FloatArray = NDArray[np.float64]
 
@@ -65,6 +66,10 @@ class SessionData:
         Safety events in time order.
     counts : dict
         Messages per topic.
+    gait : dict
+        The gait publisher's phases (exo_has_msgs/GaitPhase), where recorded: ``t`` [s],
+        ``motion`` (its MOTION_* value), ``phase`` and ``amplitude``, and per joint the moment per
+        kilogram of carried mass [N m/kg] under the joint's name.
     start : float
         Stamp of the first reference [s]: the start of the trials.
 
@@ -76,6 +81,7 @@ class SessionData:
     commands: dict[str, dict[str, FloatArray]]
     events: list[Event] = field(default_factory=list)
     counts: dict[str, int] = field(default_factory=dict)
+    gait: dict[str, FloatArray] = field(default_factory=dict)
 
     @property
     def start(self) -> float:
@@ -106,6 +112,7 @@ def read_session(bag: str | Path) -> SessionData:
     commands: dict[str, dict[str, list[float]]] = defaultdict(lambda: defaultdict(list))
     events: list[Event] = []
     counts: dict[str, int] = defaultdict(int)
+    gait: dict[str, list[float]] = defaultdict(list)
     state_topics = {f'/{has_state_topic(j)}': j for j in JOINT_NAMES}
     command_topics = {f'/{has_command_topic(j)}': j for j in JOINT_NAMES}
     with read_messages(bag) as messages:
@@ -130,6 +137,16 @@ def read_session(bag: str | Path) -> SessionData:
                 series['t'].append(_stamp(msg))
                 series['motor_speed'].append(float(msg.motor_speed))
                 series['enable'].append(float(msg.enable))
+            elif topic == f'/{GAIT_PHASE_TOPIC}':
+                msg = typestore.deserialize_cdr(data, msgtype)
+                names = list(msg.joints)
+                if all(j in names for j in JOINT_NAMES) and \
+                        len(msg.moment_per_mass) == len(names):
+                    gait['t'].append(_stamp(msg))
+                    for name in ('motion', 'phase', 'amplitude'):
+                        gait[name].append(float(getattr(msg, name)))
+                    for j in JOINT_NAMES:
+                        gait[j].append(float(msg.moment_per_mass[names.index(j)]))
             elif topic == f'/{SAFETY_EVENT_TOPIC}':
                 msg = typestore.deserialize_cdr(data, msgtype)
                 events.append(Event(_stamp(msg), msg.joint, int(msg.kind), int(msg.severity),
@@ -144,13 +161,21 @@ def read_session(bag: str | Path) -> SessionData:
                 for joint, series in table.items()}
 
     return SessionData(np.asarray(reference_t), np.asarray(reference), arrays(states),
-                       arrays(commands), sorted(events, key=lambda e: e.t), dict(counts))
+                       arrays(commands), sorted(events, key=lambda e: e.t), dict(counts),
+                       {k: np.asarray(v, dtype=float) for k, v in gait.items()})
 
 
-def linkages() -> dict[str, Linkage]:
-    """Each joint's linkage from the shipped parameter sets."""
-    return {joint: Linkage.from_parameters(load_parameters(joint_type_of(joint)))
+def joint_parameters(files: Mapping[str, str | Path] | None = None) -> dict[str, HasParameters]:
+    """Each joint's parameter set: the shipped ones, or ``files`` by joint type."""
+    chosen = files or {}
+    return {joint: load_parameters(chosen.get(joint_type_of(joint), joint_type_of(joint)))
             for joint in JOINT_NAMES}
+
+
+def linkages(files: Mapping[str, str | Path] | None = None) -> dict[str, Linkage]:
+    """Each joint's linkage: the shipped parameter sets', or those of ``files``."""
+    return {joint: Linkage.from_parameters(params)
+            for joint, params in joint_parameters(files).items()}
 
 
 @dataclass(frozen=True)
@@ -164,6 +189,7 @@ class Tracking:
     minimum: float
     maximum: float
     cylinder_rms: float  # m
+    saturated: float  # share of the window's motor speed commands at the motor's limit
 
     @property
     def peak(self) -> float:
@@ -177,13 +203,22 @@ def joint_angles(data: SessionData, joint: str, linkage: Linkage) -> tuple[Float
     return series['t'], np.asarray(linkage.angle(series['position']), dtype=float)
 
 
+def speed_limits(files: Mapping[str, str | Path] | None = None) -> dict[str, float]:
+    """Each joint's motor speed limit [rad/s]: the shipped parameter sets', or of ``files``."""
+    return {joint: params.motor_speed_max for joint, params in joint_parameters(files).items()}
+
+
 def tracking(data: SessionData, segments: Sequence[tuple[str, float, float]],
-             links: dict[str, Linkage] | None = None) -> list[Tracking]:
+             links: dict[str, Linkage] | None = None,
+             limits: dict[str, float] | None = None) -> list[Tracking]:
     """Tracking statistics per joint and per segment ``(name, start, end)`` [s from start].
 
     The reference is interpolated at the state stamps. A window with no state is skipped.
+    ``saturated`` counts the controller's commands in the window at the motor speed limit
+    (``limits``, rad/s; default the shipped parameter sets'), within a part in a million.
     """
     links = linkages() if links is None else links
+    limits = speed_limits() if limits is None else limits
     rows = []
     for index, joint in enumerate(JOINT_NAMES):
         if joint not in data.states:
@@ -192,15 +227,21 @@ def tracking(data: SessionData, segments: Sequence[tuple[str, float, float]],
         ref = np.interp(t, data.reference_t, data.reference[:, index])
         x = data.states[joint]['position']
         x_ref = np.asarray(links[joint].position(ref, check=False), dtype=float)
+        command = data.commands.get(joint, {})
+        command_t = command.get('t', np.zeros(0))
+        at_limit = np.abs(command.get('motor_speed', np.zeros(0))) >= limits[joint] * (1 - 1e-6)
         for name, start, end in segments:
             inside = (t >= data.start + start) & (t < data.start + end)
             if not np.any(inside):
                 continue
             error = np.degrees(angle[inside] - ref[inside])
+            sent = (command_t >= data.start + start) & (command_t < data.start + end)
+            saturated = float(np.mean(at_limit[sent])) if np.any(sent) else math.nan
             rows.append(Tracking(joint, name, int(np.sum(inside)),
                                  float(np.sqrt(np.mean(error ** 2))), float(error.min()),
                                  float(error.max()),
-                                 float(np.sqrt(np.mean((x[inside] - x_ref[inside]) ** 2)))))
+                                 float(np.sqrt(np.mean((x[inside] - x_ref[inside]) ** 2))),
+                                 saturated))
     return rows
 
 

@@ -109,7 +109,7 @@ def run(config: SessionConfig, folder: Path, faults: LinkFaults | None = None) -
     assert session.bag is not None
     data = read_session(session.bag)
     return write_report(data, folder / 'report', config.motions, config.durations,
-                        bag=session.bag, notes=notes)
+                        bag=session.bag, notes=notes, files=config.params or None)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -2,7 +2,9 @@ r"""Gait trajectory publisher: joint references for walking and squatting trials
 
 Publishes the four joints' reference angles and angular velocities as sensor_msgs/JointState
 on ``joint_reference`` at a fixed rate: the trials listed in ``motions`` and ``durations`` back
-to back, each starting and ending standing (exo_has_control.trajectory), then standing. Walking
+to back, each starting and ending standing (exo_has_control.trajectory), then standing, and with
+each reference the motion's phase and every joint's moment per kilogram of carried mass as
+exo_has_msgs/GaitPhase on ``gait_phase``, from which the plants take their loads. Walking
 follows a normative gait table (Winter's by default; ``gait_file`` takes any CSV of the same
 shape, such as CGA data), the right leg half a cycle behind the left::
 
@@ -21,9 +23,13 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 
 from exo_has_control.trajectory import JOINTS, ReferenceTable, Schedule, TrialPlan
+from exo_has_msgs.msg import GaitPhase
 from exo_has_runtime.execution import run_node
-from exo_has_runtime.topics import JOINT_REFERENCE_TOPIC
+from exo_has_runtime.topics import GAIT_PHASE_TOPIC, JOINT_REFERENCE_TOPIC
 from exo_has_sim.gait import WINTER, load_gait_cycle
+
+MOTIONS = {'stand': GaitPhase.MOTION_STAND, 'walk': GaitPhase.MOTION_WALK,
+           'squat': GaitPhase.MOTION_SQUAT}
 
 
 def _range(low: float, high: float) -> list[FloatingPointRange]:
@@ -86,6 +92,8 @@ class GaitPublisher(Node):
         self._table = ReferenceTable(self._schedule, self._gait)
         self._publisher = self.create_publisher(JointState, JOINT_REFERENCE_TOPIC,
                                                 qos_profile_sensor_data)
+        self._phase_publisher = self.create_publisher(GaitPhase, GAIT_PHASE_TOPIC,
+                                                      qos_profile_sensor_data)
         self._delay_ns = round(delay * 1e9)
         self._start_ns: int | None = None
         self._trial = -1
@@ -107,11 +115,17 @@ class GaitPublisher(Node):
         if now.nanoseconds < self._start_ns:
             return
         t = (now.nanoseconds - self._start_ns) * 1e-9
-        angles, rates = self._table.sample(t)
+        angles, rates, moments = self._table.sample(t)
         self._log_progress(t)
+        stamp = now.to_msg()
         message = JointState(name=list(JOINTS), position=angles, velocity=rates)
-        message.header.stamp = now.to_msg()
+        message.header.stamp = stamp
         self._publisher.publish(message)
+        motion, phase, amplitude = self._schedule.phase_at(t)
+        gait_phase = GaitPhase(motion=MOTIONS[motion], phase=phase, amplitude=amplitude,
+                               joints=list(JOINTS), moment_per_mass=moments)
+        gait_phase.header.stamp = stamp
+        self._phase_publisher.publish(gait_phase)
 
     def _log_progress(self, t: float) -> None:
         trial = self._schedule.trial_at(t)

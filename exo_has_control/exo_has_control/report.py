@@ -1,13 +1,14 @@
 """A session report: Markdown with PNG plots of a recorded exoskeleton session.
 
-Reference against actual joint angles, cylinder positions, chamber pressures, motor speeds
+Reference against actual joint angles, cylinder positions, chamber pressures, the loads on
+the rods, motor speeds
 (command and actual), the tracking error, the safety events and tracking-error statistics per
 joint and trial.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import matplotlib as mpl
@@ -22,6 +23,7 @@ from exo_has_control.analysis import (
     joint_angles,
     linkages,
     rates,
+    speed_limits,
     tracking,
 )
 from exo_has_runtime.joints import JOINT_NAMES
@@ -51,9 +53,10 @@ def _save(fig: plt.Figure, folder: Path, name: str) -> str:
     return name
 
 
-def plot_session(data: SessionData, folder: Path) -> dict[str, str]:
-    """Write the plots; return their file names by subject."""
-    links = linkages()
+def plot_session(data: SessionData, folder: Path,
+                 files: Mapping[str, str | Path] | None = None) -> dict[str, str]:
+    """Write the plots; return their file names by subject (``files``: see write_report)."""
+    links = linkages(files)
     t0 = data.start
     plots = {}
     fig, axes = _figure('Joint angles: reference (dashed) and actual')
@@ -83,7 +86,9 @@ def plot_session(data: SessionData, folder: Path) -> dict[str, str]:
 
     for key, title, field, scale, unit in (
             ('position', 'Cylinder positions', 'position', 1e3, 'mm'),
-            ('pressure', 'Rodless chamber pressures', 'pressure_a', 1e-6, 'MPa')):
+            ('pressure', 'Rodless chamber pressures', 'pressure_a', 1e-6, 'MPa'),
+            ('load', 'External loads on the rods (positive pushing the cylinder in)',
+             'load_force', 1.0, 'N')):
         fig, axes = _figure(title)
         for ax, joint in zip(axes, JOINT_NAMES, strict=True):
             if joint in data.states:
@@ -110,20 +115,26 @@ def plot_session(data: SessionData, folder: Path) -> dict[str, str]:
 
 def tracking_table(rows: Sequence[Tracking]) -> list[str]:
     """Markdown table of tracking statistics."""
-    lines = ['| joint | trial | samples | rms [deg] | min [deg] | max [deg] | cylinder rms [mm] |',
-             '|---|---|---|---|---|---|---|']
+    lines = ['| joint | trial | samples | rms [deg] | min [deg] | max [deg] | cylinder rms [mm] '
+             '| motor at its limit [%] |', '|---|---|---|---|---|---|---|---|']
     lines += [f'| {r.joint} | {r.segment} | {r.samples} | {r.rms:.2f} | {r.minimum:+.2f} | '
-              f'{r.maximum:+.2f} | {r.cylinder_rms * 1e3:.2f} |' for r in rows]
+              f'{r.maximum:+.2f} | {r.cylinder_rms * 1e3:.2f} | {100 * r.saturated:.1f} |'
+              for r in rows]
     return lines
 
 
 def write_report(data: SessionData, folder: Path, motions: Sequence[str],
                  durations: Sequence[float], bag: Path | None = None,
-                 notes: Sequence[str] = ()) -> Path:
-    """Write ``report.md`` and its plots into folder; return the report's path."""
+                 notes: Sequence[str] = (),
+                 files: Mapping[str, str | Path] | None = None) -> Path:
+    """Write ``report.md`` and its plots into folder; return the report's path.
+
+    ``files``: the plants' parameters files by joint type, where they are not the shipped
+    ones (the joint angles and the motor limits are theirs).
+    """
     folder.mkdir(parents=True, exist_ok=True)
-    plots = plot_session(data, folder)
-    rows = tracking(data, segments_of(motions, durations))
+    plots = plot_session(data, folder, files)
+    rows = tracking(data, segments_of(motions, durations), linkages(files), speed_limits(files))
     lines = ['# exo_has session report', '']
     if bag is not None:
         lines += [f'Bag: `{bag}` (rosbag2, MCAP); replay it with `exo-has replay {bag}`.', '']
@@ -135,7 +146,8 @@ def write_report(data: SessionData, folder: Path, motions: Sequence[str],
               '(Sun et al. 2021, section 5.3).', '',
               f'![joint angles]({plots["angles"]})', '', f'![tracking error]({plots["error"]})',
               '', '## Hydraulics', '', f'![cylinder positions]({plots["position"]})', '',
-              f'![pressures]({plots["pressure"]})', '', f'![motor speeds]({plots["speed"]})', '',
+              f'![pressures]({plots["pressure"]})', '', f'![loads]({plots["load"]})', '',
+              f'![motor speeds]({plots["speed"]})', '',
               '## Safety events', '']
     if data.events:
         lines += ['| t [s] | joint | kind | severity | value | limit | latched | text |',

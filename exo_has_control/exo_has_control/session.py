@@ -39,6 +39,7 @@ from exo_has_runtime.testing.hosts import OPERATOR, ROBOT, VirtualHosts
 from exo_has_runtime.testing.processes import NodeProcess
 from exo_has_runtime.topics import (
     DIAGNOSTICS_TOPIC,
+    GAIT_PHASE_TOPIC,
     JOINT_REFERENCE_TOPIC,
     SAFETY_EVENT_TOPIC,
     SAFETY_RESET_TOPIC,
@@ -79,7 +80,8 @@ CONFIGURABLE_NODES = ('recorder', 'pd_controller', 'watchdog', 'gait_publisher')
 
 def recorded_topics(with_loads: bool = False) -> list[str]:
     """Absolute names of the topics a session records."""
-    topics = [f'/{JOINT_REFERENCE_TOPIC}', f'/{SAFETY_EVENT_TOPIC}', DIAGNOSTICS_TOPIC]
+    topics = [f'/{JOINT_REFERENCE_TOPIC}', f'/{GAIT_PHASE_TOPIC}', f'/{SAFETY_EVENT_TOPIC}',
+              DIAGNOSTICS_TOPIC]
     for joint in JOINT_NAMES:
         topics += [f'/{has_command_topic(joint)}', f'/{has_state_topic(joint)}']
         if with_loads:
@@ -170,11 +172,17 @@ class SessionConfig:
     start_delay : float
         Time from the moment the gait publisher's readers (controller, watchdog, recorder)
         have matched to its first reference [s]: the nodes settle at standing first.
+    params : dict
+        Parameters file by joint type (``'hip'``, ``'knee'``) where not the shipped one: the
+        plants', the controller's and the watchdog's (with ``hardware='plants'``).
+    carried_mass : float
+        Mass [kg] the wearer carries, which the plants' loads follow along the gait
+        (:mod:`exo_has_sim.loads`): 25 kg, the load of the paper's tracking tests (section 5.2),
+        for all four joints, as both legs carry it in turn.
     load_mass : dict
-        Mass [kg] each joint type's default load is derived for. Hips: the paper's 50 kg design
-        case (310 N; much lighter hip loads chatter the compact valve and spike the pressure).
-        Knees: 25 kg, the load of the paper's tracking tests (section 5.2), since the 50 kg
-        design case (1155 N) drives the knees to the 18 MPa relief at the peaks of walking.
+        Mass [kg] each joint type's constant load is derived for on the simulated CAN devices,
+        which have no gait phase: the peak extensor moment at the standing lever arm, 1099 N on
+        the hips for the paper's 50 kg design case, 894 N on the knees for 25 kg.
     stale_periods : int
         Control periods without a state or command before the watchdog stops everything: 40
         (200 ms at 200 Hz), some forty times the worst tick lateness of the session's nodes
@@ -215,6 +223,8 @@ class SessionConfig:
     node_arguments: dict[str, tuple[str, ...]] = field(default_factory=dict)
     start_delay: float = 2.0
     stale_periods: int = 40
+    params: dict[str, str] = field(default_factory=dict)
+    carried_mass: float = 25.0  # kg, exo_has_sim.loads.TRACKING_LOAD_MASS
     load_mass: dict[str, float] = field(default_factory=lambda: {'hip': 50.0, 'knee': 25.0})
     hardware: str = 'plants'
     can_channel: str = ''
@@ -228,6 +238,10 @@ class SessionConfig:
             raise ValueError(msg)
         if self.hardware not in HARDWARE:
             msg = f'unknown hardware {self.hardware!r}: expected one of {", ".join(HARDWARE)}'
+            raise ValueError(msg)
+        kinds = sorted(set(self.params) - {'hip', 'knee'})
+        if kinds:
+            msg = f'params for unknown joint types {", ".join(kinds)}: expected hip or knee'
             raise ValueError(msg)
         unknown = sorted(set(self.node_arguments) - set(CONFIGURABLE_NODES))
         if unknown:
@@ -273,14 +287,19 @@ def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
             ready=r'driver ready', stage=2, node_class='exo_has_driver.driver_node:Driver'))
     else:
         for joint in JOINT_NAMES:
+            kind = joint_type_of(joint)
             specs.append(NodeSpec(f'{joint}_plant', 'exo_has_sim.plant_node', (
                 '--ros-args', '-r', f'__node:={joint}_plant', '-p', f'joint:={joint}',
                 '-p', f'rate:={config.rate}',
-                '-p', f'load_mass:={config.load_mass[joint_type_of(joint)]}',
+                '-p', 'load_model:=gait', '-p', f'load_mass:={config.carried_mass}',
+                *(('-p', f'params:={config.params[kind]}') if kind in config.params else ()),
                 '-p', f'realtime_priority:={config.realtime_priority}',
                 *config.plant_arguments.get(joint, ())),
                 ready=rf'{joint} plant ready', node_class='exo_has_sim.plant_node:PlantNode'))
-    controller = config.node_arguments.get('pd_controller', ())
+    # The controller and the watchdog take the plants' parameters files (linkage, stroke).
+    files = [(kind, path) for kind, path in sorted(config.params.items())]
+    controller = (*(token for kind, path in files for token in ('-p', f'{kind}.params:={path}')),
+                  *config.node_arguments.get('pd_controller', ()))
     specs.append(NodeSpec('pd_controller', 'exo_has_control.pd_controller',
                           ('--ros-args', *controller) if controller else (),
                           ready=r'controller ready',
@@ -288,6 +307,7 @@ def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
     specs.append(NodeSpec('watchdog', 'exo_has_driver.watchdog', (
         '--ros-args', '-p', f'rate:={config.rate}', '-p', f'control_rate:={config.rate}',
         '-p', f'stale_periods:={config.stale_periods}',
+        *(token for kind, path in files for token in ('-p', f'params_{kind}:={path}')),
         *config.node_arguments.get('watchdog', ())), stage=3,
         node_class='exo_has_driver.watchdog:Watchdog'))
     # The controller, the watchdog and the recorders take the references.

@@ -18,10 +18,11 @@ from collections.abc import Sequence
 from exo_has_sim.kinematics import Linkage
 from exo_has_sim.parameters import HasParameters
 
-#: Default rejoin speed [m/s]: a sixth of the knee cylinder's peak speed in walking (0.31 m/s
-#: with the shipped gait), a third of either joint's in squatting (0.14-0.15 m/s), and fast
-#: enough to cross a whole stroke (0.13 m) in under 3 s, within the watchdog's start-up grace.
-DEFAULT_REJOIN_SPEED = 0.05
+#: Default rejoin speed [m/s]: under a sixth of the knee cylinder's peak speed in walking
+#: (0.16 m/s with the shipped gait and linkage), under a third of either joint's in squatting
+#: (0.054-0.073 m/s), and fast enough to cross a whole stroke (0.04 m) in under 3 s, within the
+#: watchdog's start-up grace.
+DEFAULT_REJOIN_SPEED = 0.015
 #: Cylinder speed [m/s] up to which a reference that crosses the rejoin ramp between two
 #: calls counts as moving there, not jumping there: above the shipped gait's 0.31 m/s and
 #: twice the pumps' top speed (0.17-0.21 m/s). A reference message's own rate, twice over (for

@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from exo_has_sim.gait import GaitCycle, squat_depth
+from exo_has_sim.loads import squat_moments
 
 FloatArray = NDArray[np.float64]
 JOINTS = ('left_hip', 'left_knee', 'right_hip', 'right_knee')
@@ -121,6 +122,34 @@ def joint_angles(plan: TrialPlan, gait: GaitCycle, t: FloatArray,
     return np.tile(stand, 2) + weight * motion
 
 
+def joint_moments(plan: TrialPlan, gait: GaitCycle, t: FloatArray,
+                  standing: FloatArray | None = None) -> FloatArray:
+    """Return the extensor moments per kilogram of carried mass [N m/kg] of the four joints.
+
+    Walking: the gait table's moments at each leg's phase, times the trial's envelope;
+    squatting: the quasi-static squat's (:func:`exo_has_sim.loads.squat_moments`) at the
+    reference's posture, which the envelope already shapes. Either ramps in and out with the
+    motion. Standing: zero.
+
+    Returns
+    -------
+    FloatArray
+        Shape (len(t), 4), in the order of :data:`JOINTS`.
+
+    """
+    times = np.asarray(t, dtype=float)
+    if plan.motion == 'walk':
+        phase = times * plan.stride_frequency
+        left = np.column_stack(gait.moments_at(phase))
+        right = np.column_stack(gait.moments_at(phase + 0.5))
+        return envelope(plan, times)[:, None] * np.hstack([left, right])
+    if plan.motion == 'squat':
+        angles = joint_angles(plan, gait, times, standing)
+        hip, knee = squat_moments(angles[:, 0], angles[:, 1], 1.0)
+        return np.column_stack([hip, knee, hip, knee])
+    return np.zeros((len(times), 4))
+
+
 def joint_velocities(plan: TrialPlan, gait: GaitCycle, t: FloatArray, dt: float = 1e-4,
                      standing: FloatArray | None = None) -> FloatArray:
     """Return reference angular velocities [rad/s], central differences of joint_angles."""
@@ -168,6 +197,32 @@ class Schedule:
             return -1
         return int(np.searchsorted(self.starts, t, side='right') - 1)
 
+    def phase_at(self, t: float) -> tuple[str, float, float]:
+        """Return the motion at t [s], its cycle fraction in [0, 1) and its envelope (0 to 1).
+
+        Standing (before, between and after the trials, or a ``stand`` trial): phase and
+        envelope 0.
+        """
+        trial = self.trial_at(t)
+        if trial < 0 or self.plans[trial].motion == 'stand':
+            return 'stand', 0.0, 0.0
+        plan = self.plans[trial]
+        local = t - float(self.starts[trial])
+        frequency = plan.stride_frequency if plan.motion == 'walk' else plan.squat_frequency
+        amplitude = float(envelope(plan, np.array([local]))[0])
+        return plan.motion, (local * frequency) % 1.0, amplitude
+
+    def moments(self, gait: GaitCycle, t: FloatArray) -> FloatArray:
+        """Moments per kilogram of carried mass [N m/kg] of the four joints at times t [s]."""
+        times = np.atleast_1d(np.asarray(t, dtype=float))
+        result = np.zeros((len(times), 4))
+        stand = np.array(self.standing)
+        for plan, start in zip(self.plans, self.starts, strict=True):
+            inside = (times >= start) & (times < start + plan.duration)
+            if np.any(inside):
+                result[inside] = joint_moments(plan, gait, times[inside] - start, stand)
+        return result
+
     def references(self, gait: GaitCycle, t: FloatArray) -> tuple[FloatArray, FloatArray]:
         """Angles [rad] and angular velocities [rad/s] of the four joints at times t [s].
 
@@ -212,18 +267,25 @@ class ReferenceTable:
         self._block = -1
         self._angles = np.zeros((0, 4))
         self._rates = np.zeros((0, 4))
+        self._moments = np.zeros((0, 4))
 
-    def sample(self, t: float) -> tuple[list[float], list[float]]:
-        """Angles [rad] and angular velocities [rad/s] of the four joints at t [s]."""
+    def sample(self, t: float) -> tuple[list[float], list[float], list[float]]:
+        """Angles [rad], angular velocities [rad/s] and moments per kg of carried mass [N m/kg].
+
+        Each of the four joints at t [s] (:meth:`Schedule.moments`).
+        """
         index = t / self.step
         block = int(index // self._per_block)
         if block != self._block:
             grid = (block * self._per_block + np.arange(self._per_block + 1.0)) * self.step
             self._angles, self._rates = self.schedule.references(self.gait, grid)
+            self._moments = self.schedule.moments(self.gait, grid)
             self._block = block
         local = index - block * self._per_block
         k = min(int(local), self._per_block - 1)
         w = local - k
         angles = (1.0 - w) * self._angles[k] + w * self._angles[k + 1]
         rates = (1.0 - w) * self._rates[k] + w * self._rates[k + 1]
-        return [float(a) for a in angles], [float(r) for r in rates]
+        moments = (1.0 - w) * self._moments[k] + w * self._moments[k + 1]
+        return ([float(a) for a in angles], [float(r) for r in rates],
+                [float(m) for m in moments])

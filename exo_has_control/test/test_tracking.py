@@ -40,23 +40,23 @@ def test_a_reference_is_followed_at_once_and_held_still_once_it_is_old():
 
 def test_after_a_rejoin_the_target_ramps_to_a_distant_reference_at_the_rejoin_speed():
     f = follower(rejoin_speed=0.05)
-    stand = 0.02  # m, where the joint stands when control resumes
+    stand = LINKAGE.position_at(0.1)  # where the joint stands when control resumes
     f.rejoin(stand)
     assert f.target(0.0, stand) == (stand, 0.0)  # held until a reference comes
     far = LINKAGE.position_at(1.2)
-    assert far - stand > 0.03
+    assert abs(far - stand) > 0.5 * KNEE.stroke  # flexion shortens the cylinder
     targets = []
     for t in np.arange(0.0, 2.0, PERIOD):
         take(f, t, 1.2)
         targets.append(f.target(t, stand))
     positions = np.array([x for x, _ in targets])
-    steps = np.diff(positions)
+    steps = np.abs(np.diff(positions))
     assert steps.max() <= 0.05 * PERIOD * (1 + 1e-9)  # never faster than the rejoin speed
     assert positions[-1] == pytest.approx(far)  # and it caught up
     caught = int(np.argmax(np.isclose(positions, far)))
-    assert caught * PERIOD == pytest.approx((far - stand) / 0.05, abs=2 * PERIOD)
+    assert caught * PERIOD == pytest.approx(abs(far - stand) / 0.05, abs=2 * PERIOD)
     assert not f.rejoining
-    assert targets[1][1] == pytest.approx(0.05)  # the ramp's speed as the feedforward
+    assert targets[1][1] == pytest.approx(0.05 * np.sign(far - stand))  # the ramp's speed
 
 
 @pytest.mark.parametrize('rated', [True, False], ids=['with its rate', 'without rates'])
@@ -177,7 +177,7 @@ def test_the_default_rejoin_speed_is_slow_beside_the_gait_and_crosses_a_stroke_i
                       for a, r in zip(angles[:, index], rates[:, index], strict=True)]
             peaks[motion, joint] = max(speeds)
     # The figures tracking.DEFAULT_REJOIN_SPEED's comment gives.
-    assert peaks['walk', 'left_knee'] == pytest.approx(0.31, abs=0.01)
+    assert peaks['walk', 'left_knee'] == pytest.approx(0.16, abs=0.01)
     assert DEFAULT_REJOIN_SPEED <= peaks['walk', 'left_knee'] / 6
     assert all(DEFAULT_REJOIN_SPEED <= peaks['squat', j] / 2.8 for j in JOINT_NAMES[:2])
     assert KNEE.stroke / DEFAULT_REJOIN_SPEED < min(3.0, DEFAULT_STARTUP_GRACE)

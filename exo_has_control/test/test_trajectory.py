@@ -3,9 +3,17 @@ import math
 import numpy as np
 import pytest
 
-from exo_has_control.trajectory import TrialPlan, envelope, joint_angles, joint_velocities
+from exo_has_control.trajectory import (
+    ReferenceTable,
+    Schedule,
+    TrialPlan,
+    envelope,
+    joint_angles,
+    joint_velocities,
+)
 from exo_has_sim.gait import load_gait_cycle
 from exo_has_sim.kinematics import Linkage
+from exo_has_sim.loads import squat_moments
 from exo_has_sim.parameters import load_parameters
 
 GAIT = load_gait_cycle()
@@ -64,3 +72,31 @@ def test_the_envelope_is_zero_outside_and_one_inside():
 def test_bad_plans_are_refused_naming_the_problem(kwargs, message):
     with pytest.raises(ValueError, match=message):
         TrialPlan(**kwargs)
+
+
+def test_the_moments_are_the_tables_at_each_legs_phase_and_the_squats_at_its_posture():
+    walk, squat = TrialPlan('walk', duration=6.0, ramp=1.0), TrialPlan('squat', duration=4.0)
+    schedule = Schedule((walk, squat))
+    t = np.linspace(0.0, 10.0, 4001)
+    moments = schedule.moments(GAIT, t)
+    walking = t < 6.0
+    weight = envelope(walk, t[walking])
+    left_hip, left_knee = GAIT.moments_at(t[walking] * 0.85)
+    right_hip, right_knee = GAIT.moments_at(t[walking] * 0.85 + 0.5)
+    np.testing.assert_allclose(moments[walking], weight[:, None] * np.column_stack(
+        [left_hip, left_knee, right_hip, right_knee]), atol=1e-12)
+    angles, _ = schedule.references(GAIT, t[~walking])
+    hip, knee = squat_moments(angles[:, 0], angles[:, 1], 1.0)
+    np.testing.assert_allclose(moments[~walking][:, :2], np.column_stack([hip, knee]), atol=1e-12)
+    assert moments[~walking].max() > 1.0  # N m/kg: 70 deg of knee under the load
+    # The phase each sample names, with the envelope; standing after the trials.
+    assert schedule.phase_at(2.0 / 0.85 + 0.1) == pytest.approx(
+        ('walk', 0.085, 1.0), abs=1e-9)
+    motion, phase, amplitude = schedule.phase_at(6.0 + 1.5)
+    assert (motion, amplitude) == ('squat', pytest.approx(1.0)) and phase == pytest.approx(0.75)
+    assert schedule.phase_at(10.5) == ('stand', 0.0, 0.0)
+    # The real-time table interpolates the same moments.
+    table = ReferenceTable(schedule, GAIT)
+    for time in (0.5, 3.3337, 7.25):
+        _, _, sampled = table.sample(time)
+        np.testing.assert_allclose(sampled, schedule.moments(GAIT, [time])[0], atol=2e-3)

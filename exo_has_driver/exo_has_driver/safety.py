@@ -64,12 +64,12 @@ LEVEL_ERROR = 2
 LEVEL_STALE = 3
 
 DEFAULT_OVER_PRESSURE_RATIO = 0.9
-#: [m] The knee's straight-leg standing pose is 2.0 mm from the cylinder's extended end in our
-#: linkage, so the margin stays well below that; 0.5 mm covers the end stop's compression
-#: (about 0.1 mm at full thrust) and position noise.
+#: [m] The knee's straight-leg standing pose is 3.1 mm from the cylinder's extended end in the
+#: design search's linkage, so the margin stays well below that; 0.5 mm covers the end stop's
+#: compression (about 0.1 mm at full thrust) and position noise.
 DEFAULT_STROKE_MARGIN = 0.5e-3
 #: [rad] 20 deg: the paper's hip tracking error in squatting stays within -1.5/+2.5 deg, so
-#: this is far beyond normal tracking, and still below half the hip's 74 deg linkage range.
+#: this is far beyond normal tracking, and still below half the hip's 69 deg linkage range.
 DEFAULT_TRACKING_ERROR_LIMIT = math.radians(20.0)
 #: [s] Longer than the brief lag of a tracking controller at the knee's peak swing velocity,
 #: short against the half second a runaway joint needs to cross its range.

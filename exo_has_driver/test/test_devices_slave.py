@@ -21,6 +21,8 @@ from exo_has_driver.devices import Rig
 from exo_has_driver.devices.drive import DRIVE_EDS
 from exo_has_driver.devices.sensor_board import SENSOR_BOARD_EDS
 from exo_has_driver.hardware.cia402 import decode_state
+from exo_has_sim.kinematics import Linkage
+from exo_has_sim.parameters import load_parameters
 
 TIMEOUT = 5.0  # s: generous, the machine is shared
 
@@ -116,12 +118,18 @@ def statusword_of(data: bytes) -> int:
 
 @pytest.fixture(name='bench')
 def _bench() -> Iterator[tuple[Rig, Master, FakeClock]]:
-    """Yield a rig of the left hip on a fresh virtual bus, a master, and the rig's fake clock."""
+    """Yield a rig of the left hip on a fresh virtual bus, a master, and the rig's fake clock.
+
+    The hip starts at mid-stroke (21 deg of flexion), so that a drive test has room to move
+    either way: standing it is 8 mm from the extended end of its 40 mm stroke.
+    """
+    hip = load_parameters('hip')
+    mid_stroke = float(Linkage.from_parameters(hip).angle(hip.stroke / 2.0))
     channel = f'devices-{uuid.uuid4().hex}'
     bus = can.Bus(interface='virtual', channel=channel)
     master = Master(channel)
     clock = FakeClock()
-    rig = Rig(bus, ['left_hip'], clock=clock)
+    rig = Rig(bus, ['left_hip'], clock=clock, initial_angle=mid_stroke)
     rig.start()
     try:
         yield rig, master, clock

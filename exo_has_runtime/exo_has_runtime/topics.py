@@ -27,6 +27,10 @@ def load_force_topic(joint: str) -> str:
 #: ``position`` their angles [rad] (flexion positive), ``velocity`` [rad/s].
 JOINT_REFERENCE_TOPIC = 'joint_reference'
 
+#: exo_has_msgs/msg/GaitPhase, published with every joint reference: the motion, its phase and
+#: each joint's moment per kilogram of carried mass, from which the plants take their loads.
+GAIT_PHASE_TOPIC = 'gait_phase'
+
 #: exo_has_msgs/msg/SafetyEvent from the watchdog and the driver (reliable, transient local).
 SAFETY_EVENT_TOPIC = 'safety_events'
 

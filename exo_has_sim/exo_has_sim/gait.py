@@ -70,6 +70,20 @@ class GaitCycle:
         hip, knee = self._splines
         return np.asarray(hip(percent), dtype=float), np.asarray(knee(percent), dtype=float)
 
+    def moments_at(self, phase: NDArray[np.float64] | float) -> tuple[FloatArray, FloatArray]:
+        """Hip and knee moments per body mass [N m/kg] at gait phase(s), zero without them.
+
+        Linear between the table's samples, wrapped as :meth:`angles_at`: a moment curve has
+        corners (heel strike) that a spline would overshoot.
+        """
+        percent = (np.asarray(phase, dtype=float) % 1.0) * 100.0
+        if self.hip_moment is None or self.knee_moment is None:
+            return np.zeros_like(percent), np.zeros_like(percent)
+        keep = self.cycle_percent < 100.0  # 100 % is the next cycle's 0 %
+        cycle = self.cycle_percent[keep]
+        return (np.interp(percent, cycle, self.hip_moment[keep], period=100.0),
+                np.interp(percent, cycle, self.knee_moment[keep], period=100.0))
+
 
 def squat_depth(phase: NDArray[np.float64] | float) -> FloatArray:
     """Share of a squat's depth at phase(s) in cycles: a raised cosine, 0 standing, 1 down.

@@ -1,19 +1,27 @@
-"""External loads on a HAS: the default rod force from the paper's load and normative moments.
+"""External loads on a HAS: a constant design load, or a load that follows the motion.
 
 The paper sized the HAS in simulations of walking and squatting "under the 50 kg load"
-(section 2.4) and tested it with a 50 kg load on the rig (section 5.1). Normative gait data give
+(section 2.4) and tested its tracking carrying 25 kg (section 5.2). Normative gait data give
 the net joint moments per kilogram of body mass over the gait cycle (Winter's table: hip and
-knee moments, extensor positive). The default external load of a plant is the largest
-normative extensor moment of its joint, carried for the paper's 50 kg, turned into a rod force
-through the linkage's lever arm at the standing pose:
-``F = m * max(M / m) / lever_arm(standing)``.
+knee moments, extensor positive).
 
-Held constant, it is the stance-phase design case: a load that pushes the cylinder in (the
-rodless chamber carries it, paper section 3) throughout, as gravity would. It keeps the valve
-in assist: a lighter load needs so little motor speed to hold that the compact valve drifts
-towards free mode (see :func:`exo_has_sim.model.initial_state`). A flexor moment would pull the
-rod out, which the model's rodless-chamber-only load path does not resist, so the sign changes
-of the normative moment over the cycle are not reproduced.
+Along the motion (:class:`JointLoad`, the plant node's default): a joint's extensor moment is
+the carried mass times the normative moment per kilogram at the gait phase the gait publisher
+sends (walking), or times the quasi-static squat's moment per kilogram at the squat's posture
+(:func:`squat_moments`); the rod force is that moment over the linkage's lever arm at the
+joint's angle. The paper's circuit can only push: the rod side is open to the tank, so the
+cylinder retracts only while a force pushes the piston in after the oil the pump draws from the
+rodless chamber. Where the moment is a flexor moment (it would pull the rod out) or too small
+to push the piston after the pump, the wearer's muscles move the limb and the cuff carries the
+exoskeleton's leg along: the model takes that contact force as :func:`wearer_push`, the least
+force that retracts the cylinder as fast as the pump can empty it. Without it the model stays
+physical (the rodless chamber cavitates at vacuum and the piston is pulled out), but the joint
+cannot follow its reference: with the signed moments of 25 kg the knee misses its walk by up
+to 66 deg and the hip by 44 deg (issue 26's note).
+
+Constant (:func:`default_load_force`): the largest normative extensor moment of the joint for a
+mass, at the standing lever arm, held for the whole run: the stance-phase design case, which
+the simulated CAN devices and the diagnosis's records keep.
 """
 
 from __future__ import annotations
@@ -32,6 +40,8 @@ FloatArray = NDArray[np.float64]
 
 #: Load of the paper's design simulations and frequency-response tests [kg] (sections 2.4, 5.1).
 PAPER_LOAD_MASS = 50.0
+#: Load the paper's exoskeleton carried in its tracking tests [kg] (section 5.2).
+TRACKING_LOAD_MASS = 25.0
 
 
 def peak_extensor_moment(gait: GaitCycle, joint_type: str) -> float:
@@ -81,6 +91,62 @@ def default_load_force(params: HasParameters, gait: GaitCycle | None = None,
     moment = mass * peak_extensor_moment(table, params.joint_type)
     lever = float(Linkage.from_parameters(params).lever_arm(standing_angle))
     return moment / lever
+
+
+def wearer_push(params: HasParameters) -> float:
+    """Least force [N] the wearer's limb keeps on the rod, pushing the cylinder in.
+
+    The piston's viscous drag at the pump's top speed, ``B D_p n_max / A_A``: the force under
+    which the cylinder retracts as fast as the pump can draw oil from the rodless chamber, so
+    that in a steady retraction the chamber keeps its oil (a sudden full-speed command still
+    outruns the load while it accelerates, and the chamber cavitates for that while). 354 N on
+    the design of issue 26.
+    """
+    return params.damping * params.pump_displacement * params.motor_speed_max / params.area_a
+
+
+class JointLoad:
+    """The external rod force on one joint along the motion (see the module).
+
+    Parameters
+    ----------
+    params : HasParameters
+        The joint's HAS: its linkage, damping and pump.
+    mass : float
+        Carried mass [kg] the moments per kilogram are scaled by.
+
+    Raises
+    ------
+    ParameterError
+        If the mass is not positive and finite.
+
+    """
+
+    def __init__(self, params: HasParameters, mass: float) -> None:
+        if not (math.isfinite(mass) and mass > 0.0):
+            msg = f'load mass must be positive and finite [kg], got {mass!r}'
+            raise ParameterError(msg)
+        self.mass = mass
+        self.push = wearer_push(params)
+        self._linkage = Linkage.from_parameters(params)
+        self._stroke = params.stroke
+
+    def force(self, moment_per_mass: ArrayLike, position: ArrayLike) -> FloatArray:
+        """Rod force [N], positive pushing the cylinder in, of a moment per kg at a position.
+
+        Parameters
+        ----------
+        moment_per_mass : array_like
+            The joint's extensor moment per kilogram of carried mass [N m/kg].
+        position : array_like
+            Cylinder extension [m] (held within the stroke): the lever arm is the linkage's at
+            the joint angle it gives, the posture the joint is in rather than the one asked.
+
+        """
+        moment = self.mass * np.asarray(moment_per_mass, dtype=float)
+        x = np.clip(np.asarray(position, dtype=float), 0.0, self._stroke)
+        lever = self._linkage.lever_arm(self._linkage.angle(x))
+        return np.asarray(np.maximum(moment / lever, self.push), dtype=float)
 
 
 #: Segments of an adult of 1.75 m [m] (Winter's anthropometry: thigh 0.245, shank 0.246 of

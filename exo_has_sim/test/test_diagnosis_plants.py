@@ -1,6 +1,7 @@
 """The plants of the diagnosis, the fits and the selection of effects, on known data."""
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,6 +21,8 @@ from exo_has_sim.parameters import load_parameters
 from exo_has_sim.simulate import simulate_closed_loop
 
 PERIOD = 0.005
+#: The truth plants' bench: the design before issue 26's search (14 mm bore, 130 mm stroke).
+BENCH = Path(__file__).resolve().parents[2] / 'test' / 'bench_rig'
 
 
 def mass_measurement(force, position):
@@ -235,7 +238,10 @@ def test_a_transport_delay_in_the_project_model_s_data_is_named_with_its_size():
 
 
 def test_a_second_order_motor_loop_is_taken_as_the_baseline_not_named_a_transport_delay():
-    hip = load_parameters('hip')
+    # On the bench's 130 mm stroke: on the searched 40 mm one the stroke-scaled excitation
+    # moves a third as far under the same sensor noise, and this 12 s record no longer shows
+    # the loop's second order (issue 26's note).
+    hip = load_parameters(BENCH / 'hip.yaml')
     truth = hip.replace(motor_damping_ratio=0.5, bulk_modulus=1.1e9)
     rng = np.random.default_rng(8)
     columns = has_closed_loop(truth, seconds=12.0, seed=2)
@@ -275,7 +281,9 @@ def test_without_pressure_or_load_the_effects_through_the_pressure_are_not_ident
 
 
 def test_each_window_takes_the_load_its_position_calls_for_when_the_load_is_unmeasured():
-    hip = load_parameters('hip')
+    # On the bench's 130 mm stroke, as the figures below were measured (on the searched 40 mm
+    # stroke the linearised window loads leave 0.22 % of the motion, not 0.2 %).
+    hip = load_parameters(BENCH / 'hip.yaml')
     truth = hip.replace(bulk_modulus=1.2e9, pump_leakage=2e-13, damping=1800.0)
     columns = has_closed_loop(truth)  # a load swinging between 2 and 10 MPa
     measurement = check_columns(position_only(columns), 'has', 'own model',

@@ -1,3 +1,4 @@
+import dataclasses
 import math
 
 import numpy as np
@@ -52,3 +53,19 @@ def test_the_cycle_closes_continuously_where_100_percent_meets_0():
     assert np.max(np.abs(np.diff(rate))) < 0.05  # no kinks: the velocity is continuous too
     np.testing.assert_allclose(gait.angles_at(gait.cycle_percent[:-1] / 100.0)[0],
                                gait.hip_angle[:-1], atol=1e-12)  # through the samples
+
+
+def test_the_moments_are_the_tables_between_its_samples_and_wrap_with_the_cycle():
+    gait = load_gait_cycle()
+    assert gait.hip_moment is not None and gait.knee_moment is not None
+    hip, knee = gait.moments_at(gait.cycle_percent[:-1] / 100.0)
+    np.testing.assert_allclose(hip, gait.hip_moment[:-1])
+    np.testing.assert_allclose(knee, gait.knee_moment[:-1])
+    # Halfway between two samples, the mean; a phase past 1 is the next cycle's.
+    middle = (gait.cycle_percent[3] + gait.cycle_percent[4]) / 200.0
+    hip, _ = gait.moments_at(np.array([middle, middle + 1.0]))
+    assert hip[0] == pytest.approx((gait.hip_moment[3] + gait.hip_moment[4]) / 2.0)
+    assert hip[1] == pytest.approx(hip[0])
+    # A table without moments gives none rather than failing.
+    bare = dataclasses.replace(gait, hip_moment=None, knee_moment=None)
+    assert not np.any(bare.moments_at(np.linspace(0.0, 1.0, 5))[0])

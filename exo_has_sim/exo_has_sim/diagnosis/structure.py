@@ -79,6 +79,8 @@ DIRECTION_RATIO = 1.2
 MOVING_SHARE = 0.15
 #: Fewest samples each direction needs for the flow gain to be judged.
 MIN_SAMPLES = 50
+#: Speeds of a resisting force's fit, in brake velocities: tanh(2) = 0.96 of the level.
+BRAKE_SATURATION = 2.0
 #: Percentiles of a chamber's pressure where its loss in the flow gains' regression may bend.
 LOSS_KNOTS = (50.0, 75.0, 90.0)
 #: Time after the command last changed sign before a sample counts for the flow gains [s].
@@ -469,7 +471,9 @@ def resisting_force(plant: HasPlant) -> tuple[float, float] | None:
         - params.moving_mass * smooth(m.position, period, 2)
     if m.has('pressure_b'):
         force -= params.area_b * smooth(m.optional['pressure_b'], period)
-    moving = np.abs(v) > MOVING_SHARE * float(np.percentile(np.abs(v), 95))
+    # Fast enough that the model's smoothed brake (tanh(v / v_b)) is within 4 % of its level.
+    moving = np.abs(v) > max(MOVING_SHARE * float(np.percentile(np.abs(v), 95)),
+                             BRAKE_SATURATION * params.brake_velocity)
     if np.count_nonzero(moving & (v > 0)) < MIN_SAMPLES \
             or np.count_nonzero(moving & (v < 0)) < MIN_SAMPLES:
         return None
