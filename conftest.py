@@ -20,6 +20,13 @@ os.environ.pop('ROS_STATIC_PEERS', None)
 configure_transport()
 
 
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Mark unit every test that starts no process and runs quickly (the quick run, -m unit)."""
+    for item in items:
+        if item.get_closest_marker('process') is None and item.get_closest_marker('slow') is None:
+            item.add_marker(pytest.mark.unit)
+
+
 @pytest.fixture
 def ros_context() -> Iterator[object]:
     """Give a fresh, initialised rclpy context, shut down after the test."""

@@ -7,6 +7,8 @@ import pytest
 
 from exo_has_runtime.testing.processes import NodeProcess
 
+pytestmark = pytest.mark.process  # every test here starts processes
+
 PEERS = 'exo_has_runtime.testing.peers'
 
 

@@ -55,6 +55,8 @@ from exo_has_sim.loads import default_load_force
 from exo_has_sim.parameters import load_parameters
 from exo_has_sim.simulate import simulate_closed_loop
 
+pytestmark = pytest.mark.process  # every test here starts processes
+
 MOTIONS, DURATIONS = ('walk', 'squat'), (8.0, 8.0)
 RATE = 100.0  # Hz: see the module docstring
 STRIDE_FREQUENCY = 0.85  # Hz: see the module docstring

@@ -6,7 +6,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from exo_has_runtime.bag import bag_summary
+
+pytestmark = pytest.mark.process  # every test here starts processes
 
 
 def test_the_demo_records_a_session_and_ends_with_the_path_of_its_report(tmp_path):

@@ -14,8 +14,11 @@ from __future__ import annotations
 import multiprocessing
 import os
 
+import pytest
 import truth_plant as tp
 from test_hidden_effects import diagnose_csv
+
+pytestmark = pytest.mark.slow  # every test here runs long diagnoses
 
 SEED = 70000
 EFFECTS = ('coulomb_friction', 'pump_deadzone')

@@ -39,6 +39,7 @@ def log(tmp_path_factory):
     return path
 
 
+@pytest.mark.slow
 def test_a_parameters_file_of_another_geometry_gives_a_verdict_not_a_traceback(tmp_path, log,
                                                                              capsys):
     # A bigger bore, a thinner rod, a shorter stroke, a third of the dead volume, twice the

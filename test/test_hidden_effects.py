@@ -112,6 +112,7 @@ def print_table(rows):
     print(f'named correctly: {hits}/{len(rows)}; wall {sum(r["wall"] for r in rows):.0f} s')
 
 
+@pytest.mark.slow
 def test_the_hidden_effect_is_named_in_at_least_90_percent_of_the_draws(results):
     assert sp.EFFECT_CHOICES == tp.EFFECT_CHOICES
     for plant in (tp, sp):
@@ -120,6 +121,7 @@ def test_the_hidden_effect_is_named_in_at_least_90_percent_of_the_draws(results)
     assert sum(hit(row) for row in results) >= 0.9 * len(results)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('plant, share', [(tp, 0.9), (sp, 0.5)],
                          ids=['first plant', 'second plant'])
 def test_every_size_named_is_within_25_percent_of_the_truth(results, plant, share):
@@ -135,6 +137,7 @@ def test_every_size_named_is_within_25_percent_of_the_truth(results, plant, shar
     assert max(abs(e) for e in named) <= SIZE_TOLERANCE, named
 
 
+@pytest.mark.slow
 def test_every_real_effect_shows_a_positive_validated_gain(results):
     for row in results:
         if row['draw'].effect == 'none':
@@ -150,6 +153,7 @@ def test_every_real_effect_shows_a_positive_validated_gain(results):
             assert low <= doc['sizes'][row['draw'].effect] <= high
 
 
+@pytest.mark.slow
 def test_no_false_alarm_on_the_draws_without_an_effect(results):
     nones = [row for row in results if row['draw'].effect == 'none']
     assert len(nones) == sum(draws // len(tp.EFFECT_CHOICES) for _, draws, _ in PLANTS)
@@ -163,6 +167,7 @@ def _size_name(effect):
     return 'relief_crack_pressure' if effect == 'relief_valve' else effect
 
 
+@pytest.mark.slow
 def test_two_effects_at_once_are_both_found_named_or_reported_beside_their_rival(tmp_path):
     base = tp.draw(FIRST_SEED + 100, 'hip', effect='none', excitation='sine_sum')
     effects = {'coulomb_friction': 80.0, 'transport_delay': 0.008}

@@ -40,6 +40,8 @@ from rigs import rig_file
 from exo_has_sim.diagnosis.cli import main
 from exo_has_sim.diagnosis.effects import EFFECTS
 
+pytestmark = pytest.mark.slow  # every test here runs long diagnoses
+
 #: Columns of a record as the paper's rig logged it.
 KEPT = ('time', 'motor_speed_command', 'position', 'reference')
 #: (plant, seed, effect): seeds of test_hidden_effects.py: effect-free draws, effects through

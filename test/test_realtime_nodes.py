@@ -12,6 +12,8 @@ import pytest
 
 from exo_has_runtime.testing.processes import NodeProcess
 
+pytestmark = pytest.mark.process  # every test here starts processes
+
 NODES = {
     'plant': ('exo_has_sim.plant_node', ('-p', 'joint:=left_hip'), r'plant ready'),
     'controller': ('exo_has_control.pd_controller', (), r'controller ready'),

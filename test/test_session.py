@@ -28,6 +28,8 @@ from exo_has_sim.gait import load_gait_cycle
 from exo_has_sim.loads import JointLoad, squat_moments
 from exo_has_sim.parameters import load_parameters
 
+pytestmark = pytest.mark.process  # every test here starts processes
+
 MOTIONS, DURATIONS = ('walk', 'squat'), (8.0, 8.0)
 RATE = 200.0
 # The searched design (issue 26) walks at the paper's 0.85 strides/s within the pump, under loads

@@ -28,6 +28,8 @@ from exo_has_runtime.bag import bag_summary
 from exo_has_runtime.joints import JOINT_NAMES
 from exo_has_runtime.testing.processes import NodeProcess
 
+pytestmark = pytest.mark.process  # every test here starts processes
+
 #: From the watchdog seeing a second publisher in its graph to its FATAL event [s]: the next
 #: source check (every 0.1 s) and the wait for the publisher's name (0.3 s at most).
 SECOND_SOURCE_BOUND = 1.0

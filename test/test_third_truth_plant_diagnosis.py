@@ -36,6 +36,8 @@ import third_truth_plant as rig
 
 from exo_has_sim.diagnosis.cli import STRUCTURE_STATUS, main
 
+pytestmark = pytest.mark.slow  # every test here runs long diagnoses
+
 LOGGED = third_rig.LOGGED
 POSITION_ONLY = ('time', 'motor_speed_command', 'position', 'reference')
 #: Draws described with the paper's circuit: seed, effect, columns.

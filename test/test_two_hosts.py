@@ -40,6 +40,8 @@ from exo_has_runtime.bag import bag_summary
 from exo_has_runtime.joints import JOINT_NAMES
 from exo_has_runtime.topics import has_state_topic
 
+pytestmark = pytest.mark.process  # every test here starts processes
+
 RATE = 200.0
 WALK = 26.0  # s
 CLEAN, LOSS_5, LOSS_20, CUT, RESTORE, RESET = 0.0, 5.0, 9.0, 13.0, 15.0, 16.0  # s, from start

@@ -274,6 +274,7 @@ CYCLONE_LOOPBACK = (
     '</Domain></CycloneDDS>')
 
 
+@pytest.mark.process
 def test_a_plain_cyclone_dds_participant_receives_the_has_state_of_a_plant_node():
     domain_id = int(os.environ['ROS_DOMAIN_ID'])
     domain = Domain(domain_id, CYCLONE_LOOPBACK)

@@ -45,6 +45,7 @@ def test_the_message_package_is_an_interface_package():
         assert f'"msg/{msg_file.name}"' in cmake
 
 
+@pytest.mark.process
 def test_colcon_lists_the_packages_with_their_build_types():
     colcon = shutil.which('colcon', path=str(Path(sys.executable).parent))
     if colcon is None:
@@ -85,6 +86,7 @@ def test_every_console_script_is_installed_where_ros2_run_looks(package):
         assert executable.is_file() and os.access(executable, os.X_OK), executable
 
 
+@pytest.mark.process
 def test_the_installed_plant_executable_starts_publishes_and_stops_cleanly(ros_context):
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
@@ -125,6 +127,7 @@ def test_the_installed_plant_executable_starts_publishes_and_stops_cleanly(ros_c
     assert 'left_knee plant ready' in output
 
 
+@pytest.mark.process
 def test_the_controller_watchdog_and_driver_start_without_loading_the_simulator():
     # They read joint names (exo_has_runtime.joints) and the PD law (exo_has_sim.control_law),
     # not the numba-compiled model: loading it would cost each node seconds and rewrite caches.

@@ -133,6 +133,7 @@ def _policies(pid: int) -> list[int]:
     return [os.sched_getscheduler(int(task.name)) for task in Path(f'/proc/{pid}/task').iterdir()]
 
 
+@pytest.mark.process
 def test_the_process_runs_the_devices_over_udp_multicast_and_takes_stdin_faults() -> None:
     group = random_multicast_group()
     bus = can.Bus(interface='udp_multicast', channel=group)

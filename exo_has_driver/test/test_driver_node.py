@@ -168,6 +168,7 @@ def peers(ros_context):
     peers.close()
 
 
+@pytest.mark.process
 def test_the_driver_moves_the_joints_stops_on_the_watchdog_and_on_a_drive_fault(peers, group):
     devices = Devices(group)
     try:
@@ -280,6 +281,7 @@ def drive_every_joint(peers, driver, speed=-20.0):
     assert peers.run(WAIT, lambda: peers.speeds_near(speed, 1.0)), driver.output
 
 
+@pytest.mark.process
 def test_sigterm_ends_the_driver_cleanly_and_it_stops_the_motors_on_its_way_out(peers, group):
     with running_devices(group) as devices:
         with NodeProcess(DRIVER, bus_args(group)) as driver:
@@ -294,6 +296,7 @@ def test_sigterm_ends_the_driver_cleanly_and_it_stops_the_motors_on_its_way_out(
                          r'-?0\.0 rad/s', devices.output), devices.output
 
 
+@pytest.mark.process
 def test_a_second_source_of_a_joints_state_stops_every_joint_until_it_is_gone(peers, group):
     with running_devices(group), NodeProcess(DRIVER, bus_args(group)) as driver:
         drive_every_joint(peers, driver)
@@ -330,6 +333,7 @@ def test_a_second_source_of_a_joints_state_stops_every_joint_until_it_is_gone(pe
         assert peers.run(WAIT, lambda: peers.speeds_near(-20.0, 1.0)), driver.output
 
 
+@pytest.mark.process
 @pytest.mark.parametrize(('override', 'message'), [
     ('joints:=[left_hip,left_ankle]',
      "cannot start: parameter joints: unknown joint 'left_ankle': expected one of left_hip"),

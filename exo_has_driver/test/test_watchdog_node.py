@@ -158,6 +158,7 @@ def start_rig(make_rig, watchdog, joints=JOINT_NAMES):
     return rig
 
 
+@pytest.mark.process
 @pytest.mark.parametrize('batch', [True, False], ids=['taken_at_each_check', 'by_callback'])
 def test_a_fatal_fault_stops_every_joint_and_a_reset_on_the_topic_releases_it(make_rig, batch):
     with NodeProcess(WATCHDOG, [*ARGS, '-p', f'batch:={str(batch).lower()}']) as watchdog:
@@ -236,6 +237,7 @@ def test_a_fatal_fault_stops_every_joint_and_a_reset_on_the_topic_releases_it(ma
     assert watchdog.process.returncode == 0, watchdog.output
 
 
+@pytest.mark.process
 def test_a_late_joiner_learns_of_the_latched_stop_that_silence_caused(make_rig):
     args = ['--ros-args', '-p', 'joints:=[left_hip]', '-p', 'startup_grace:=0.3']
     with NodeProcess(WATCHDOG, args) as watchdog:
@@ -254,6 +256,7 @@ def test_a_late_joiner_learns_of_the_latched_stop_that_silence_caused(make_rig):
         assert len(rig.stops['left_hip']) >= 50, len(rig.stops['left_hip'])
 
 
+@pytest.mark.process
 @pytest.mark.parametrize(('override', 'message'), [
     ('joints:=[left_hip,left_ankle]',
      "cannot start: parameter joints: unknown joint 'left_ankle': expected one of left_hip"),
@@ -270,6 +273,7 @@ def test_a_bad_setting_ends_the_node_at_start_naming_it(override, message):
         assert 'Traceback' not in watchdog.output
 
 
+@pytest.mark.process
 def test_a_malformed_params_file_ends_the_node_at_start_in_one_line(tmp_path):
     params = tmp_path / 'watchdog.yaml'
     params.write_text('/**:\n  ros__parameters:\n    rate: [200.0,\n', encoding='utf-8')

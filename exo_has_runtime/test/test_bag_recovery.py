@@ -169,6 +169,7 @@ def test_a_chunk_whose_bytes_were_damaged_on_disk_is_told_by_its_crc_and_left_ou
     assert 'the chunk at byte' in report.describe() and 'CRC' in report.describe()
 
 
+@pytest.mark.process
 def test_a_writer_killed_mid_write_is_recovered_with_every_message_it_flushed(tmp_path):
     script = (
         'import sys, time\n'

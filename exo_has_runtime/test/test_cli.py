@@ -2,6 +2,8 @@ import importlib
 import time
 from importlib.metadata import entry_points
 
+import pytest
+
 from exo_has_runtime.cli import main, subcommands
 from exo_has_runtime.testing.processes import NodeProcess
 
@@ -34,6 +36,7 @@ def test_help_lists_the_subcommands(capsys):
     assert f'subcommands: {", ".join(sorted(REGISTERED))}' in capsys.readouterr().out
 
 
+@pytest.mark.process
 def test_the_demonstration_nodes_exchange_commands_and_states_for_every_joint():
     with NodeProcess('exo_has_runtime.demo.state_echo'):
         time.sleep(1.0)  # let the echo subscribe first

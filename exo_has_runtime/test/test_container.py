@@ -52,6 +52,7 @@ def test_an_unknown_node_class_is_named_in_the_error(target, wording):
         node_class(target)
 
 
+@pytest.mark.process
 def test_an_unknown_node_class_ends_the_container_with_one_line_and_exit_code_2():
     result = subprocess.run(
         [sys.executable, '-m', 'exo_has_runtime.container', '--node', 'exo_has_sim:Nope'],
@@ -62,6 +63,7 @@ def test_an_unknown_node_class_ends_the_container_with_one_line_and_exit_code_2(
         'class Nope']
 
 
+@pytest.mark.process
 def test_two_composed_plants_each_take_their_own_parameters_and_stop_cleanly(ros_context):
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node

@@ -153,6 +153,7 @@ def shared_memory_mapped_by(script: str, env: dict[str, str]) -> int:
     return int(result.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.process
 def test_rmw_fastrtps_still_adds_shared_memory_under_localhost_even_asked_for_udp():
     # The defect this module works around: if this fails, rmw_fastrtps_cpp no longer forces
     # shared memory under LOCALHOST and exo_has_runtime.dds can be simplified.
@@ -165,6 +166,7 @@ def test_rmw_fastrtps_still_adds_shared_memory_under_localhost_even_asked_for_ud
     assert shared_memory_mapped_by(script, plain) > 0
 
 
+@pytest.mark.process
 def test_an_exo_has_process_maps_no_shared_memory_under_localhost_or_subnet():
     script = """
         from exo_has_runtime.dds import configure_transport
@@ -179,6 +181,7 @@ def test_an_exo_has_process_maps_no_shared_memory_under_localhost_or_subnet():
         assert shared_memory_mapped_by(script, env) == 0, discovery
 
 
+@pytest.mark.process
 def test_nodes_on_udp_find_each_other_under_localhost(tmp_path: Path):
     # The test process runs under LOCALHOST, configured by conftest.py as every node is.
     with NodeProcess('exo_has_runtime.demo.command_talker', ('--ros-args', '-p', 'rate:=50.0'),

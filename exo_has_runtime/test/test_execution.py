@@ -30,6 +30,7 @@ def test_events_executor_still_fails_callbacks_that_take_the_message_info(ros_co
     node.destroy_node()
 
 
+@pytest.mark.process
 def test_events_executor_spin_still_ignores_sigint_while_a_timer_runs():
     # The reason spin() calls spin_once in slices: revisit it if this starts to pass through.
     code = textwrap.dedent("""
@@ -81,6 +82,7 @@ def test_an_unknown_executor_name_is_refused_naming_the_choices(monkeypatch, ros
     assert type(make_executor(context=ros_context)).__name__ == 'SingleThreadedExecutor'
 
 
+@pytest.mark.process
 @pytest.mark.parametrize('stop_signal', [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
 def test_a_stop_signal_ends_a_node_cleanly_with_its_last_words_logged(stop_signal):
     with NodeProcess('exo_has_sim.plant_node', ['--ros-args', '-p', 'joint:=left_hip']) as plant:
@@ -94,6 +96,7 @@ def test_a_stop_signal_ends_a_node_cleanly_with_its_last_words_logged(stop_signa
     assert 'Failed to publish log message to rosout' not in output
 
 
+@pytest.mark.process
 def test_a_burst_of_stop_signals_still_ends_a_node_cleanly():
     # A second signal used to arrive inside the first one's handler, which held the lock of a
     # threading.Event: the node waited on that lock forever (a tethered node whose owner was
@@ -109,6 +112,7 @@ def test_a_burst_of_stop_signals_still_ends_a_node_cleanly():
         assert 'Traceback' not in plant.output
 
 
+@pytest.mark.process
 def test_a_node_process_keeps_its_start_up_objects_out_of_later_collections():
     # A full collection walking every import stalls a node for some 50 ms (bench/stalls.py).
     code = textwrap.dedent("""

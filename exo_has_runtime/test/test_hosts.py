@@ -40,6 +40,7 @@ def test_a_missing_tool_is_named_with_its_package(monkeypatch):
         check_privileges(losses=True)
 
 
+@pytest.mark.process
 def test_a_runner_killed_by_sigkill_leaves_no_namespace_link_or_holder_behind(
         virtual_hosts_available):
     before = {p.name for p in Path('/sys/class/net').iterdir()}

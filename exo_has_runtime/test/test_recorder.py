@@ -47,6 +47,7 @@ def read_back(bag):
 
 # Batches a second apart: the last messages reach the bag only through the batch taken when
 # the recorder stops. A callback per message: poll_period 0.
+@pytest.mark.process
 @pytest.mark.parametrize('poll_period', [1.0, 0.0], ids=['batches', 'callbacks'])
 @pytest.mark.parametrize('stop_signal', [signal.SIGINT, signal.SIGTERM],
                          ids=['SIGINT', 'SIGTERM'])
@@ -87,6 +88,7 @@ def test_the_recorder_closes_its_bag_with_every_message_on_sigint_and_sigterm(
     assert topics[0].offered_qos[0].reliability == QosReliability.RELIABLE
 
 
+@pytest.mark.process
 def test_a_latched_event_published_before_the_recorder_started_is_recorded(tmp_path,
                                                                           ros_context):
     bag = tmp_path / 'bag'
@@ -109,6 +111,7 @@ def test_a_latched_event_published_before_the_recorder_started_is_recorded(tmp_p
                                                          QosDurability.TRANSIENT_LOCAL)
 
 
+@pytest.mark.process
 def test_a_recorder_killed_with_sigkill_loses_no_more_than_its_last_flush_period(tmp_path,
                                                                                 ros_context):
     bag = tmp_path / 'bag'
@@ -148,6 +151,7 @@ def test_a_recorder_killed_with_sigkill_loses_no_more_than_its_last_flush_period
     assert speeds == [float(i) for i in range(len(speeds))]
 
 
+@pytest.mark.process
 def test_a_replayed_bag_gives_the_recorded_bytes_in_order_at_twice_the_speed(tmp_path):
     source, replayed = tmp_path / 'source', tmp_path / 'replayed'
     start_ns, expected = 1_700_000_000_000_000_000, []
@@ -182,6 +186,7 @@ def test_a_replayed_bag_gives_the_recorded_bytes_in_order_at_twice_the_speed(tmp
     assert sorted(abs(error) for error in errors_s)[len(errors_s) * 9 // 10] < 0.010, errors_s
 
 
+@pytest.mark.process
 def test_a_bad_recorder_configuration_ends_it_with_one_line_naming_the_problem(tmp_path):
     (tmp_path / 'taken').mkdir()
     for parameters, complaint in [(['flush_period:=0.0'], 'flush_period'),
@@ -215,6 +220,7 @@ def test_the_graph_gives_each_publishers_offered_qos_for_the_recording(ros_conte
     node.destroy_node()
 
 
+@pytest.mark.process
 def test_replay_of_a_bag_whose_types_are_unknown_here_fails_naming_them(tmp_path, monkeypatch):
     share = tmp_path / 'prefix' / 'share' / 'vendor_msgs' / 'msg'
     share.mkdir(parents=True)
@@ -243,6 +249,7 @@ rclpy.spin(node)
 """
 
 
+@pytest.mark.process
 def test_a_replay_waits_for_its_subscribers_acknowledgements_and_names_a_topic_left_waiting(
         tmp_path):
     source = tmp_path / 'source'

@@ -9,7 +9,11 @@ import sys
 import textwrap
 import time
 
+import pytest
+
 from exo_has_runtime.testing.tether import ORPHANED_EXIT
+
+pytestmark = pytest.mark.process  # every test here starts processes
 
 CHILD = """
 import pathlib, signal, sys, time

@@ -112,6 +112,7 @@ def test_the_squat_moments_are_the_virtual_work_of_the_carried_load():
     assert_allclose(squat_moments(0.0, 0.0, mass), [0.0, 0.0], atol=1e-9)
 
 
+@pytest.mark.slow
 def test_the_shipped_files_carry_the_searched_design_which_beats_the_old_one():
     joints = [load_parameters('hip'), load_parameters('knee')]
     choices = search(joints)
@@ -150,7 +151,7 @@ def test_requirements_no_design_can_meet_are_reported_missed_not_raised():
     assert all(m.kind == 'requirement' for m in missed)  # every limit still met
 
 
-
+@pytest.mark.slow
 def test_the_command_prints_the_margins_and_writes_the_feasible_region(tmp_path, capsys):
     plot = tmp_path / 'region.png'
     assert main(['--joint', 'knee', '--search', '--plot', str(plot)]) == 0

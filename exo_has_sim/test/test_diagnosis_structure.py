@@ -115,6 +115,7 @@ def test_the_flow_gains_by_direction_come_out_of_a_known_balance():
     assert gains.ratio == pytest.approx(1.40 / 0.95, rel=1e-6)
 
 
+@pytest.mark.slow
 def test_a_valve_switched_record_fitted_with_the_papers_circuit_names_no_effect(switched_log,
                                                                                 tmp_path):
     out = tmp_path / 'diagnosis.json'

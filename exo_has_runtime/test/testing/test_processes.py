@@ -6,6 +6,8 @@ import pytest
 
 from exo_has_runtime.testing.processes import NodeProcess
 
+pytestmark = pytest.mark.process  # every test here starts processes
+
 
 def test_a_process_started_with_stdin_reads_the_lines_sent_to_it(tmp_path) -> None:
     # json.tool echoes what it reads once its input closes: proof the line got through.
