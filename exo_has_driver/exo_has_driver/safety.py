@@ -257,6 +257,8 @@ class _Joint:
     tracking_from: float = math.inf
     # Publishers found on the joint's topics, by topic: more than one on any is a fault.
     sources: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    # The crowded topic and its publishers as last reported.
+    sources_reported: tuple[str, tuple[str, ...]] | None = None
     # Kinds whose condition holds and has been reported (the deduplication).
     active: set[SafetyKind] = field(default_factory=set)
 
@@ -476,7 +478,9 @@ class Watchdog:
         -------
         list[Event]
             SECOND_SOURCE, FATAL, when a topic of the joint comes to have more than one
-            publisher; nothing while that persists, or once every topic has one or none.
+            publisher, and again when its publishers change while it persists (one that ROS
+            had not named is named); nothing while they stay, or once every topic has one or
+            none.
 
         """
         state = self._joint(joint)
@@ -484,11 +488,19 @@ class Watchdog:
         crowded = {name: found for name, found in state.sources.items() if len(found) > 1}
         if not crowded:
             state.active.discard(SafetyKind.SECOND_SOURCE)
+            state.sources_reported = None
             return []
         name, found = next(iter(sorted(crowded.items())))
-        return self._once(joint, state, SafetyKind.SECOND_SOURCE, Severity.FATAL, len(found), 1.0,
-                          f'{joint}: second source: {len(found)} publishers on {name} '
-                          f'({", ".join(found)}), where one is allowed')
+        text = (f'{joint}: second source: {len(found)} publishers on {name} '
+                f'({", ".join(found)}), where one is allowed')
+        if state.sources_reported == (name, found):
+            return []
+        # New, or the same condition held by others: a publisher that ROS had not named yet
+        # (the stop must not wait for its name) is named now, or another joined.
+        state.sources_reported = (name, found)
+        state.active.add(SafetyKind.SECOND_SOURCE)
+        return [self._latch.event(joint, SafetyKind.SECOND_SOURCE, Severity.FATAL, len(found),
+                                  1.0, text)]
 
     def check(self, t: float) -> list[Event]:
         """Check for stale states and commands at time t [s]; call it periodically.

@@ -372,6 +372,23 @@ def test_a_second_publisher_of_a_joints_command_is_fatal_names_both_and_blocks_a
     assert not watchdog.stopped
 
 
+def test_a_second_publisher_that_ros_names_late_is_reported_again_by_its_name():
+    watchdog, _ = running()
+    topic = '/left_hip/has_state'
+    unnamed = 'an unnamed node (publisher gid 0a0b)'
+    first = only(watchdog.on_sources('left_hip', topic, ['/left_hip_plant', unnamed]))
+    assert unnamed in first.text and watchdog.stopped
+    # The stop did not wait for the name; once ROS gives it, the same condition names it.
+    named = only(watchdog.on_sources('left_hip', topic, ['/left_hip_plant', '/rogue_plant']))
+    assert (named.kind, named.severity, named.latched) == (
+        SafetyKind.SECOND_SOURCE, Severity.FATAL, True)
+    assert '/rogue_plant' in named.text and '/left_hip_plant' in named.text
+    assert watchdog.on_sources('left_hip', topic, ['/rogue_plant', '/left_hip_plant']) == []
+    # Gone and back: a new condition, reported anew.
+    assert watchdog.on_sources('left_hip', topic, ['/left_hip_plant']) == []
+    assert only(watchdog.on_sources('left_hip', topic, ['/left_hip_plant', '/rogue_plant']))
+
+
 def test_one_publisher_per_topic_on_every_joint_raises_nothing():
     watchdog, _ = running()
     for joint in JOINT_NAMES:
