@@ -33,7 +33,7 @@ from typing import Any
 
 from common import describe_machine, on_this_machine, write_results
 
-from exo_has_control.analysis import linkages, rates, read_session, speed_limits, tracking
+from exo_has_control.analysis import joint_parameters, rates, read_session, tracking
 from exo_has_control.demo import run
 from exo_has_control.report import segments_of
 from exo_has_control.session import SessionConfig
@@ -69,8 +69,8 @@ def session_figures(config: SessionConfig, folder: Path,
     """Run one demo session into folder; its events, rates and tracking figures."""
     run(config, folder)
     data = read_session(folder / 'bag')
-    rows = tracking(data, segments_of(config.motions, config.durations), linkages(files),
-                    speed_limits(files))
+    rows = tracking(data, segments_of(config.motions, config.durations),
+                    joint_parameters(files))
     rate = rates(data)
     return {
         'events': [e.text for e in data.events if e.severity >= ERROR],

@@ -172,10 +172,10 @@ def joint_parameters(files: Mapping[str, str | Path] | None = None) -> dict[str,
             for joint in JOINT_NAMES}
 
 
-def linkages(files: Mapping[str, str | Path] | None = None) -> dict[str, Linkage]:
-    """Each joint's linkage: the shipped parameter sets', or those of ``files``."""
-    return {joint: Linkage.from_parameters(params)
-            for joint, params in joint_parameters(files).items()}
+def linkages(params: Mapping[str, HasParameters] | None = None) -> dict[str, Linkage]:
+    """Each joint's linkage, from its parameter set (default: the shipped ones)."""
+    chosen = joint_parameters() if params is None else params
+    return {joint: Linkage.from_parameters(chosen[joint]) for joint in JOINT_NAMES}
 
 
 @dataclass(frozen=True)
@@ -203,22 +203,18 @@ def joint_angles(data: SessionData, joint: str, linkage: Linkage) -> tuple[Float
     return series['t'], np.asarray(linkage.angle(series['position']), dtype=float)
 
 
-def speed_limits(files: Mapping[str, str | Path] | None = None) -> dict[str, float]:
-    """Each joint's motor speed limit [rad/s]: the shipped parameter sets', or of ``files``."""
-    return {joint: params.motor_speed_max for joint, params in joint_parameters(files).items()}
-
-
 def tracking(data: SessionData, segments: Sequence[tuple[str, float, float]],
-             links: dict[str, Linkage] | None = None,
-             limits: dict[str, float] | None = None) -> list[Tracking]:
+             params: Mapping[str, HasParameters] | None = None) -> list[Tracking]:
     """Tracking statistics per joint and per segment ``(name, start, end)`` [s from start].
 
     The reference is interpolated at the state stamps. A window with no state is skipped.
-    ``saturated`` counts the controller's commands in the window at the motor speed limit
-    (``limits``, rad/s; default the shipped parameter sets'), within a part in a million.
+    ``params``: each joint's parameter set (default: the shipped ones), whose linkage gives
+    the angles and whose motor speed limit ``saturated`` counts the controller's commands at,
+    within a part in a million.
     """
-    links = linkages() if links is None else links
-    limits = speed_limits() if limits is None else limits
+    chosen = joint_parameters() if params is None else params
+    links = linkages(chosen)
+    limits = {joint: chosen[joint].motor_speed_max for joint in JOINT_NAMES}
     rows = []
     for index, joint in enumerate(JOINT_NAMES):
         if joint not in data.states:

@@ -21,12 +21,13 @@ from exo_has_control.analysis import (
     SessionData,
     Tracking,
     joint_angles,
+    joint_parameters,
     linkages,
     rates,
-    speed_limits,
     tracking,
 )
 from exo_has_runtime.joints import JOINT_NAMES
+from exo_has_sim.parameters import HasParameters
 
 SEVERITIES = ('info', 'warn', 'error', 'fatal')
 
@@ -54,9 +55,9 @@ def _save(fig: plt.Figure, folder: Path, name: str) -> str:
 
 
 def plot_session(data: SessionData, folder: Path,
-                 files: Mapping[str, str | Path] | None = None) -> dict[str, str]:
-    """Write the plots; return their file names by subject (``files``: see write_report)."""
-    links = linkages(files)
+                 params: Mapping[str, HasParameters] | None = None) -> dict[str, str]:
+    """Write the plots; return their file names by subject (``params``: see tracking)."""
+    links = linkages(params)
     t0 = data.start
     plots = {}
     fig, axes = _figure('Joint angles: reference (dashed) and actual')
@@ -133,8 +134,9 @@ def write_report(data: SessionData, folder: Path, motions: Sequence[str],
     ones (the joint angles and the motor limits are theirs).
     """
     folder.mkdir(parents=True, exist_ok=True)
-    plots = plot_session(data, folder, files)
-    rows = tracking(data, segments_of(motions, durations), linkages(files), speed_limits(files))
+    params = joint_parameters(files)
+    plots = plot_session(data, folder, params)
+    rows = tracking(data, segments_of(motions, durations), params)
     lines = ['# exo_has session report', '']
     if bag is not None:
         lines += [f'Bag: `{bag}` (rosbag2, MCAP); replay it with `exo-has replay {bag}`.', '']

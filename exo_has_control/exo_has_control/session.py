@@ -297,7 +297,7 @@ def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
                 *config.plant_arguments.get(joint, ())),
                 ready=rf'{joint} plant ready', node_class='exo_has_sim.plant_node:PlantNode'))
     # The controller and the watchdog take the plants' parameters files (linkage, stroke).
-    files = [(kind, path) for kind, path in sorted(config.params.items())]
+    files = sorted(config.params.items())
     controller = (*(token for kind, path in files for token in ('-p', f'{kind}.params:={path}')),
                   *config.node_arguments.get('pd_controller', ()))
     specs.append(NodeSpec('pd_controller', 'exo_has_control.pd_controller',

@@ -101,11 +101,12 @@ def motions(joint_type: str, gait: GaitCycle | None = None) -> tuple[Motion, ...
     phase = np.arange(PHASES) / PHASES
     hip, knee = table.angles_at(phase)
     angle = hip if joint_type == 'hip' else knee
-    moments = table.hip_moment if joint_type == 'hip' else table.knee_moment
-    if moments is None:
+    if table.hip_moment is None or table.knee_moment is None:
         msg = f'{table.source}: no {joint_type}_moment column, so no walking load'
         raise ValueError(msg)
-    walk_moment = np.interp(phase * 100.0, table.cycle_percent, moments)
+    # The plants' loads take the same curve (GaitCycle.moments_at, closed on its 0 % value).
+    hip_walk, knee_walk = table.moments_at(phase)
+    walk_moment = hip_walk if joint_type == 'hip' else knee_walk
     rate = np.gradient(angle, phase[1] - phase[0]) * STRIDE_FREQUENCY
     share = squat_depth(phase)
     squat_hip, squat_knee = share * SQUAT_DEPTH['hip'], share * SQUAT_DEPTH['knee']
