@@ -45,8 +45,8 @@ def virtual_hosts_available() -> None:
     In CI (``CI`` set), which runs as root with the tools installed, fail instead: there the
     two-host tests must run.
     """
-    from exo_has_runtime.errors import HostsUnavailableError
-    from exo_has_runtime.testing.hosts import check_privileges
+    from exo_has_bringup.errors import HostsUnavailableError
+    from exo_has_bringup.hosts import check_privileges
 
     try:
         check_privileges(losses=True)

@@ -35,8 +35,8 @@ from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin
 from rosbags.rosbag2 import Writer as RosbagsWriter
 from rosbags.rosbag2.storage_mcap import McapWriter as RosbagsMcapStorage
 
+from exo_has_common.bag import BagWriter, message_definition
 from exo_has_msgs.msg import HasState
-from exo_has_runtime.bag import BagWriter, message_definition
 
 TYPE = 'exo_has_msgs/msg/HasState'
 TOPICS = [f'/{joint}/has_state' for joint in ('left_hip', 'left_knee', 'right_hip',
@@ -97,7 +97,7 @@ def write_rosbags(path: Path, messages: Messages, flush_every: int, compress: bo
 
 
 def write_shipped(path: Path, messages: Messages, flush_every: int, compress: bool) -> None:
-    """Write with :class:`exo_has_runtime.bag.BagWriter`, as the recorder does."""
+    """Write with :class:`exo_has_common.bag.BagWriter`, as the recorder does."""
     with BagWriter(path, compress=compress) as writer:
         for topic in TOPICS:
             writer.add_topic(topic, TYPE)

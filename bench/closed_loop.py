@@ -32,9 +32,10 @@ from typing import Any
 import numpy as np
 from common import describe_machine, on_this_machine, trial_cpu_shares
 
-from exo_has_control.analysis import rates, read_session, tracking
-from exo_has_control.report import segments_of
-from exo_has_control.session import Session, SessionConfig
+from exo_has_bringup.analysis import rates, read_session, tracking
+from exo_has_bringup.plan import SessionConfig
+from exo_has_bringup.report import segments_of
+from exo_has_bringup.runner import Session
 
 RESULTS = Path(__file__).resolve().parent / 'results'
 MOTIONS, DURATIONS = ('walk', 'squat'), (10.0, 8.0)

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # the scripts choose the backend before they import the session
-    from exo_has_control.session import Session
+    from exo_has_bringup.runner import Session
 
 TICK = os.sysconf('SC_CLK_TCK')
 

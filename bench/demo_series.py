@@ -1,6 +1,6 @@
 """Benchmark: demo sessions back to back, and the safety events, rates and tracking of each.
 
-Runs ``exo-has demo`` (:func:`exo_has_control.demo.run`, walking 10 s at 0.85 strides/s then
+Runs ``exo-has demo`` (:func:`exo_has_bringup.demo.run`, walking 10 s at 0.85 strides/s then
 squatting 8 s at 0.5 Hz at 200 Hz on the four plant nodes, with its report) ``--sessions``
 times for each design, the designs taking turns so that they share the machine's moods, then
 reads each bag: every safety event of severity ERROR or FATAL (none is expected: the demo has no
@@ -33,11 +33,11 @@ from typing import Any
 
 from common import describe_machine, on_this_machine, write_results
 
-from exo_has_control.analysis import joint_parameters, rates, read_session, tracking
-from exo_has_control.demo import run
-from exo_has_control.report import segments_of
-from exo_has_control.session import SessionConfig
-from exo_has_runtime.joints import JOINT_NAMES, joint_type_of
+from exo_has_bringup.analysis import joint_parameters, rates, read_session, tracking
+from exo_has_bringup.demo import run
+from exo_has_bringup.plan import SessionConfig
+from exo_has_bringup.report import segments_of
+from exo_has_common.joints import JOINT_NAMES, joint_type_of
 
 ERROR = 2  # SafetyEvent severity: ERROR and FATAL count
 

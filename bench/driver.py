@@ -27,7 +27,7 @@ Figures over the commands published and the SYNCs sent in the ``--duration`` win
   RPDO1, at which the drive applies it (command-to-SYNC). A command superseded by the next
   before the driver's cycle took it never appears: counted apart, with any lost on the way;
 * SYNC period: the intervals between SYNCs (median, deviation from 5 ms, maximum, intervals
-  over 1.5 periods), :class:`~exo_has_runtime.timing.PeriodMonitor` fed the SYNC times (as the
+  over 1.5 periods), :class:`~exo_has_common.timing.PeriodMonitor` fed the SYNC times (as the
   plants and ``bench/probe.py`` count: missed releases, ticks late by over half a period,
   lateness percentiles, the grid set by the first SYNC), and the lateness against the
   driver's own schedule (its grid restarts after a SYNC held up by a period or more, as
@@ -64,13 +64,13 @@ from common import TICK, cpu_seconds, describe_machine, on_this_machine
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 
+from exo_has_common.timing import PeriodMonitor
+from exo_has_common.topics import has_command_topic
 from exo_has_driver import can_dictionary as cd
 from exo_has_driver.hardware.bus import open_bus, random_multicast_group
 from exo_has_driver.hardware.units import DriveUnits
 from exo_has_msgs.msg import HasCommand
-from exo_has_runtime.testing.processes import NodeProcess
-from exo_has_runtime.timing import PeriodMonitor
-from exo_has_runtime.topics import has_command_topic
+from exo_has_runtime.processes import NodeProcess
 
 RESULTS = Path(__file__).resolve().parent / 'results'
 DRIVER = 'exo_has_driver.driver_node'

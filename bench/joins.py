@@ -6,7 +6,7 @@ on rmw_fastrtps_cpp's own LOCALHOST settings (shared memory and UDP), as a ``ros
 would be. The plant and the controller run either as exo_has ships them (``udp``: UDP only,
 :mod:`exo_has_runtime.dds`) or on rmw_fastrtps_cpp's LOCALHOST settings (``rmw``: shared memory
 too), taking turns. Each run reports the plant's missed periods and its worst tick lateness
-(from its own :class:`~exo_has_runtime.timing.PeriodMonitor`); a shared-memory port check shows
+(from its own :class:`~exo_has_common.timing.PeriodMonitor`); a shared-memory port check shows
 as a lateness of about 333 ms.
 
 Run (in ``./run shell``): ``python bench/joins.py [--repeats 5] [--joiners 6]``.
@@ -24,7 +24,7 @@ from pathlib import Path
 from common import on_this_machine, write_results
 
 from exo_has_runtime.dds import RMW_LOCALHOST_ENVIRONMENT
-from exo_has_runtime.testing.processes import NodeProcess
+from exo_has_runtime.processes import NodeProcess
 
 #: Joiners per run, and how long each stays after its first trial starts [s].
 JOINERS = 6

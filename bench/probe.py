@@ -2,7 +2,7 @@
 
 ``bench/system.py`` runs it next to a session: its missed periods and lateness are what any
 200 Hz node on this machine sees at that moment with no work of its own, the reference for the
-plants' figures. Prints :meth:`exo_has_runtime.timing.PeriodMonitor.summary` at the end.
+plants' figures. Prints :meth:`exo_has_common.timing.PeriodMonitor.summary` at the end.
 
 Run (in ``./run shell``): ``python bench/probe.py --rate 200 --duration 20``.
 """
@@ -15,8 +15,8 @@ import threading
 import rclpy
 from rclpy.node import Node
 
+from exo_has_common.timing import PeriodMonitor
 from exo_has_runtime.execution import spin
-from exo_has_runtime.timing import PeriodMonitor
 
 
 def main() -> None:

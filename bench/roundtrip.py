@@ -46,8 +46,8 @@ from pathlib import Path
 
 from common import cpu_seconds, describe_machine, on_this_machine
 
-from exo_has_runtime.testing.hosts import OPERATOR, ROBOT, VirtualHosts
-from exo_has_runtime.testing.processes import NodeProcess
+from exo_has_bringup.hosts import OPERATOR, ROBOT, VirtualHosts
+from exo_has_runtime.processes import NodeProcess
 
 JOINT = 'left_hip'
 #: Distinct command speeds in flight before one repeats.
@@ -69,9 +69,9 @@ def client(rate_hz: float, duration_s: float, executor_kind: str) -> dict[str, o
     from rclpy.node import Node
     from rclpy.qos import qos_profile_sensor_data
 
+    from exo_has_common.topics import has_command_topic, has_state_topic
     from exo_has_msgs.msg import HasCommand, HasState
     from exo_has_runtime.execution import make_executor, spin
-    from exo_has_runtime.topics import has_command_topic, has_state_topic
 
     rclpy.init(args=['roundtrip_client'])
     node = Node('roundtrip_client')

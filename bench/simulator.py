@@ -25,10 +25,11 @@ import numpy as np
 
 from exo_has_sim import linear, model
 from exo_has_sim.gait import load_gait_cycle
+from exo_has_sim.integrator import DEFAULT_RTOL
 from exo_has_sim.kinematics import Linkage
 from exo_has_sim.parameters import load_parameters
-from exo_has_sim.reference import simulate_reference_closed_loop
-from exo_has_sim.simulate import DEFAULT_RTOL, simulate_closed_loop
+from exo_has_sim.reference_solution import simulate_reference_closed_loop
+from exo_has_sim.simulate import simulate_closed_loop
 
 LOAD = 50.0 * 9.81
 

@@ -38,8 +38,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import write_results
 
-from exo_has_control.analysis import read_session
-from exo_has_control.session import Session, SessionConfig
+from exo_has_bringup.analysis import read_session
+from exo_has_bringup.plan import SessionConfig
+from exo_has_bringup.runner import Session
 
 WATCH_PRIORITY = 60  # SCHED_FIFO: above the plants' real-time priority option (50)
 

@@ -8,7 +8,7 @@ of ``--duration`` seconds. CPU shares come from /proc/<pid>/stat over the middle
 stamp of the newest reference the controller had (the newest reference stamped before the
 command) to the stamp of the first plant state that carries the command: reference age plus
 the wait for the plant's next period; commands superseded before a plant's tick are counted
-apart. Missed periods are the plants' own counts (exo_has_runtime.timing: a release that passed
+apart. Missed periods are the plants' own counts (exo_has_common.timing: a release that passed
 with no tick, what rclcpp's timers count as skipped), with the ticks late by over half a period
 and the lateness percentiles of the worst plant. An idle node ticking at the same rate next to
 the session (bench/probe.py) gives the machine's own floor at that moment.
@@ -16,7 +16,7 @@ the session (bench/probe.py) gives the machine's own floor at that moment.
 With ``--executors events single`` the sessions take turns with every node on rclpy's
 EventsExecutor (what exo_has ships) and on its SingleThreadedExecutor (``EXO_HAS_EXECUTOR``);
 with ``--realtime-priorities 0 10``, with the plants' loops under the default scheduler and under
-SCHED_FIFO at priority 10 (root only; see exo_has_runtime.realtime).
+SCHED_FIFO at priority 10 (root only; see exo_has_common.realtime).
 
 With ``--variants defaults watchdog.batch=false,recorder.poll_period=0``, with the nodes'
 parameters as shipped and with those set (``node.parameter=value``, comma-separated).
@@ -45,10 +45,11 @@ from pathlib import Path
 import numpy as np
 from common import describe_machine, on_this_machine, trial_cpu_shares, write_results
 
-from exo_has_control.analysis import read_session
-from exo_has_control.session import COMPOSITION, Session, SessionConfig
+from exo_has_bringup.analysis import read_session
+from exo_has_bringup.plan import COMPOSITION, SessionConfig
+from exo_has_bringup.runner import Session
+from exo_has_common.joints import JOINT_NAMES
 from exo_has_runtime.dds import RMW_LOCALHOST_ENVIRONMENT
-from exo_has_runtime.joints import JOINT_NAMES
 
 
 def latencies(bag: Path) -> tuple[np.ndarray, np.ndarray, int]:

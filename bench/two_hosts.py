@@ -1,15 +1,15 @@
 """Benchmark: two hosts (robot PC and operator laptop) on a link: discovery and partitions.
 
 Root only: the hosts are network namespaces joined by a veth pair
-(:mod:`exo_has_runtime.testing.hosts`).
+(:mod:`exo_has_bringup.hosts`).
 
-1. Discovery settings. A publisher on the robot host (``exo_has_runtime.testing.peers``,
+1. Discovery settings. A publisher on the robot host (``exo_has_runtime.topic_tool``,
    reliable, 100 Hz) and, started after it, a subscriber on the operator host: the time from
    the subscriber's start to its first message, which includes the start of its Python and
    rclpy (the ``loopback`` row, both on one host, gives that floor). Compared: the ROS 2 Jazzy
    settings a user of two machines may choose, each on a link that carries multicast and on
    one that drops it (iptables on the link, as many Wi-Fi networks and managed switches do).
-2. Partitions. Two-host walking sessions (:class:`exo_has_control.session.Session` with
+2. Partitions. Two-host walking sessions (:class:`exo_has_bringup.runner.Session` with
    ``hosts=2``): the link goes down at 4 s for 2 s, comes back, and the operator resets 1 s
    later. From the robot's own bag: the time from the cut to the STALE_REFERENCE hold event,
    and to every joint standing (its cylinder slower than 2 mm/s for 0.1 s on); from the
@@ -37,12 +37,13 @@ os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(100, 20
 
 from common import describe_machine, write_results
 
-from exo_has_control.analysis import read_session
-from exo_has_control.session import Session, SessionConfig
+from exo_has_bringup.analysis import read_session
+from exo_has_bringup.hosts import ADDRESSES, LINK_INTERFACE, OPERATOR, ROBOT, VirtualHosts
+from exo_has_bringup.plan import SessionConfig
+from exo_has_bringup.runner import Session
+from exo_has_common.joints import JOINT_NAMES
 from exo_has_msgs.msg import SafetyEvent
-from exo_has_runtime.joints import JOINT_NAMES
-from exo_has_runtime.testing.hosts import ADDRESSES, LINK_INTERFACE, OPERATOR, ROBOT, VirtualHosts
-from exo_has_runtime.testing.processes import NodeProcess
+from exo_has_runtime.processes import NodeProcess
 
 #: Discovery settings compared: name -> environment of the robot's and the operator's nodes.
 SETTINGS: dict[str, tuple[dict[str, str], dict[str, str]]] = {
@@ -64,14 +65,14 @@ def first_message(hosts: VirtualHosts | None, robot_env: dict[str, str],
                   operator_env: dict[str, str]) -> float | None:
     """Seconds from a subscriber's start to its first message, or None within the timeout."""
     netns = {name: hosts.hosts[name].netns if hosts else None for name in (ROBOT, OPERATOR)}
-    with NodeProcess('exo_has_runtime.testing.peers', (
+    with NodeProcess('exo_has_runtime.topic_tool', (
             'publish', f'{TOPIC}={{"data": "x"}}', '--no-wait', '--period', '0.01',
             '--duration', '60', '--name', 'talker'), env=robot_env, netns=netns[ROBOT]) as talker:
         talker.wait_for_output('READY', timeout_s=30.0)
         prefix = ['nsenter', f'--net={netns[OPERATOR]}'] if netns[OPERATOR] else []
         start = time.monotonic()
         listener = subprocess.Popen(
-            [*prefix, sys.executable, '-u', '-m', 'exo_has_runtime.testing.peers', 'record',
+            [*prefix, sys.executable, '-u', '-m', 'exo_has_runtime.topic_tool', 'record',
              TOPIC.rsplit('=', 1)[0] + '=std_msgs/msg/String', '--count', '1', '--duration',
              f'{DISCOVERY_TIMEOUT:g}', '--name', 'listener'], stdout=subprocess.PIPE,
             text=True, env={**os.environ, **operator_env}, cwd=tempfile.gettempdir())

@@ -28,8 +28,5 @@ setup(
             'pd_controller = exo_has_control.pd_controller:main',
             'gait_publisher = exo_has_control.gait_publisher:main',
         ],
-        'exo_has.commands': [
-            'demo = exo_has_control.demo:main',
-        ],
     },
 )

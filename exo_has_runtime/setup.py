@@ -26,14 +26,13 @@ setup(
     entry_points={
         'console_scripts': [
             'exo-has = exo_has_runtime.cli:main',
-            'command_talker = exo_has_runtime.demo.command_talker:main',
-            'state_echo = exo_has_runtime.demo.state_echo:main',
+            'command_talker = exo_has_runtime.examples.command_talker:main',
+            'state_echo = exo_has_runtime.examples.state_echo:main',
             'recorder = exo_has_runtime.recorder:main',
             'container = exo_has_runtime.container:main',
         ],
         'exo_has.commands': [
             'replay = exo_has_runtime.replay:main',
-            'bag = exo_has_runtime.bag:main',
         ],
     },
 )

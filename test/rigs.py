@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from exo_has_runtime.joints import JOINT_TYPES
+from exo_has_common.joints import JOINT_TYPES
 from exo_has_sim.parameters import HasParameters, load_parameters
 
 RIG_DIR = Path(__file__).resolve().parent / 'bench_rig'

@@ -22,19 +22,20 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from std_msgs.msg import Empty, Float64
 
-from exo_has_control.analysis import SessionData, read_session
-from exo_has_control.session import Session, SessionConfig
-from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
-from exo_has_runtime.bag import recover_bag
-from exo_has_runtime.joints import JOINT_NAMES
-from exo_has_runtime.profiles import SAFETY_EVENT_QOS
-from exo_has_runtime.topics import (
+from exo_has_bringup.analysis import SessionData, read_session
+from exo_has_bringup.plan import SessionConfig
+from exo_has_bringup.runner import Session
+from exo_has_common.bag import recover_bag
+from exo_has_common.joints import JOINT_NAMES
+from exo_has_common.topics import (
     SAFETY_EVENT_TOPIC,
     SAFETY_RESET_TOPIC,
     has_command_topic,
     has_state_topic,
     load_force_topic,
 )
+from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
+from exo_has_runtime.profiles import SAFETY_EVENT_QOS
 
 
 class Observer:

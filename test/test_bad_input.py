@@ -5,11 +5,11 @@ from pathlib import Path
 
 import pytest
 
-from exo_has_runtime.testing.processes import NodeProcess
+from exo_has_runtime.processes import NodeProcess
 
 pytestmark = pytest.mark.process  # every test here starts processes
 
-PEERS = 'exo_has_runtime.testing.peers'
+PEERS = 'exo_has_runtime.topic_tool'
 
 
 def test_a_subscriber_of_another_type_on_one_topic_receives_nothing_and_both_keep_running():
@@ -34,7 +34,7 @@ def test_an_unknown_type_name_fails_that_process_with_a_clear_error():
 
 
 @pytest.mark.parametrize(('module', 'arguments', 'message'), [
-    pytest.param('exo_has_runtime.demo.command_talker', ['-p', 'rate:=200'],
+    pytest.param('exo_has_runtime.examples.command_talker', ['-p', 'rate:=200'],
                  "cannot start: Trying to set parameter 'rate' to '200' of type 'INTEGER', "
                  "expecting type 'DOUBLE'", id='a wrongly typed parameter'),
     pytest.param('exo_has_sim.plant_node', ['-p', 'joint:=left_hip', '-p', 'rate:=5000.0'],

@@ -43,11 +43,12 @@ import numpy as np
 import pytest
 from session_observer import Observer, observed_session, read_so_far
 
-from exo_has_control.analysis import rates, tracking
+from exo_has_bringup.analysis import rates, tracking
+from exo_has_bringup.plan import SessionConfig
+from exo_has_bringup.report import segments_of
+from exo_has_bringup.runner import Session
+from exo_has_common.joints import JOINT_NAMES, joint_type_of
 from exo_has_control.pd import PdGains
-from exo_has_control.report import segments_of
-from exo_has_control.session import Session, SessionConfig
-from exo_has_runtime.joints import JOINT_NAMES, joint_type_of
 from exo_has_sim import model
 from exo_has_sim.gait import load_gait_cycle
 from exo_has_sim.kinematics import Linkage

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from exo_has_runtime.bag import bag_summary
+from exo_has_common.bag import bag_summary
 
 pytestmark = pytest.mark.process  # every test here starts processes
 

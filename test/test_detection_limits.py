@@ -16,7 +16,7 @@ import os
 
 import pytest
 import truth_plant as tp
-from test_hidden_effects import diagnose_csv
+from diagnosis_runs import diagnose_csv
 
 pytestmark = pytest.mark.slow  # every test here runs long diagnoses
 

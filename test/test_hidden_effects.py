@@ -22,7 +22,6 @@ from a second-order motor loop. A table of every draw is printed (``pytest -s``)
 
 from __future__ import annotations
 
-import json
 import multiprocessing
 import os
 import time
@@ -30,26 +29,12 @@ import time
 import pytest
 import second_truth_plant as sp
 import truth_plant as tp
-from rigs import rig_file
-
-from exo_has_sim.diagnosis.cli import STRUCTURE_STATUS, main
+from diagnosis_runs import diagnose_csv
 
 #: (plant, draws, first seed): the effects take turns over each plant's draws.
 PLANTS = ((tp, 14, 5000), (sp, 7, 6000))
 SIZE_TOLERANCE = 0.25
 FIRST_SEED = PLANTS[0][2]
-
-
-def diagnose_csv(path, joint_type, load_mass, out):
-    code = main([str(path), '--joint', joint_type, '--params', str(rig_file(joint_type)),
-                 '--load-mass', str(load_mass), '--json', str(out), '-q'])
-    # A verdict that the model's structure does not describe the data names no cause: on
-    # these plants, which the structure does describe, it counts as a miss (and as a false
-    # alarm on a draw without an effect).
-    assert code in (0, STRUCTURE_STATUS)
-    doc = json.loads(out.read_text())
-    assert (code == STRUCTURE_STATUS) == (doc['verdict'] == 'structure')
-    return doc
 
 
 def run_draw(task):

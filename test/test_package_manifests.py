@@ -26,7 +26,8 @@ from pathlib import Path
 import pytest
 
 WORKSPACE = Path(__file__).resolve().parents[1]
-PYTHON_PACKAGES = ('exo_has_runtime', 'exo_has_sim', 'exo_has_control', 'exo_has_driver')
+PYTHON_PACKAGES = ('exo_has_common', 'exo_has_runtime', 'exo_has_sim', 'exo_has_control',
+                   'exo_has_driver', 'exo_has_bringup')
 
 # The rosdep key of each top-level module that is not a ROS package of the same name.
 ROSDEP_KEYS = {

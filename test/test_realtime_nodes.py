@@ -1,7 +1,7 @@
 """The nodes that answer the control loop's samples take a real-time scheduling class.
 
 The plant and the PD controller each take ``realtime_priority``: SCHED_FIFO for the thread
-that spins the node (exo_has_runtime.realtime); the DDS threads stay ordinary. Without the
+that spins the node (exo_has_common.realtime); the DDS threads stay ordinary. Without the
 right to it (not root, no CAP_SYS_NICE) a node runs under the default scheduler and says so,
 which is all these tests can check there; CI runs as root.
 """
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import pytest
 
-from exo_has_runtime.testing.processes import NodeProcess
+from exo_has_runtime.processes import NodeProcess
 
 pytestmark = pytest.mark.process  # every test here starts processes
 

@@ -14,16 +14,16 @@ import numpy as np
 import pytest
 from session_observer import observed_session, outside_stalls, read_so_far
 
-from exo_has_control.analysis import tracking
-from exo_has_control.report import segments_of, write_report
-from exo_has_control.session import SessionConfig, recorded_topics
-from exo_has_msgs.msg import GaitPhase
-from exo_has_runtime.bag import bag_topics, read_messages, recover_bag
-from exo_has_runtime.joints import JOINT_NAMES, joint_type_of
-from exo_has_runtime.testing.processes import NodeProcess
-from exo_has_runtime.topics import (
+from exo_has_bringup.analysis import tracking
+from exo_has_bringup.plan import SessionConfig, recorded_topics
+from exo_has_bringup.report import segments_of, write_report
+from exo_has_common.bag import bag_topics, read_messages, recover_bag
+from exo_has_common.joints import JOINT_NAMES, joint_type_of
+from exo_has_common.topics import (
     JOINT_REFERENCE_TOPIC,
 )
+from exo_has_msgs.msg import GaitPhase
+from exo_has_runtime.processes import NodeProcess
 from exo_has_sim.gait import load_gait_cycle
 from exo_has_sim.loads import JointLoad, squat_moments
 from exo_has_sim.parameters import load_parameters
@@ -177,7 +177,7 @@ def test_replaying_the_bag_reproduces_its_messages(session, tmp_path):
 
 
 def _write_bag(path: Path, topic: str, payloads: list[bytes]) -> None:
-    from exo_has_runtime.bag import BagWriter
+    from exo_has_common.bag import BagWriter
 
     with BagWriter(path) as bag:
         bag.add_topic(topic, 'sensor_msgs/msg/JointState', [])

@@ -20,13 +20,14 @@ from pathlib import Path
 import pytest
 from session_observer import Observer
 
-from exo_has_control.analysis import read_session
-from exo_has_control.report import write_report
-from exo_has_control.session import ORPHAN_BOUND, STOP_BOUND, Session, SessionConfig
+from exo_has_bringup.analysis import read_session
+from exo_has_bringup.plan import SessionConfig
+from exo_has_bringup.report import write_report
+from exo_has_bringup.runner import ORPHAN_BOUND, STOP_BOUND, Session
+from exo_has_common.bag import bag_summary
+from exo_has_common.joints import JOINT_NAMES
 from exo_has_msgs.msg import SafetyEvent
-from exo_has_runtime.bag import bag_summary
-from exo_has_runtime.joints import JOINT_NAMES
-from exo_has_runtime.testing.processes import NodeProcess
+from exo_has_runtime.processes import NodeProcess
 
 pytestmark = pytest.mark.process  # every test here starts processes
 

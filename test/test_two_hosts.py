@@ -1,6 +1,6 @@
 """The exoskeleton split between a robot PC and an operator's laptop, with faults on the link.
 
-One two-host session (:mod:`exo_has_runtime.testing.hosts`; root only) walks for 26 s: 5 s
+One two-host session (:mod:`exo_has_bringup.hosts`; root only) walks for 26 s: 5 s
 on a clean link, 4 s losing 5 % of the packets each way, 4 s losing 20 %, then a 2 s
 partition (the link down), the link back, and a reset from the operator's side 1 s later.
 The robot side runs the plants, the controller, the watchdog and a recorder of its own; the
@@ -33,12 +33,13 @@ import numpy as np
 import pytest
 from session_observer import outside_stalls
 
-from exo_has_control.analysis import SessionData, joint_angles, linkages, read_session, tracking
-from exo_has_control.session import Session, SessionConfig
+from exo_has_bringup.analysis import SessionData, joint_angles, linkages, read_session, tracking
+from exo_has_bringup.plan import SessionConfig
+from exo_has_bringup.runner import Session
+from exo_has_common.bag import bag_summary
+from exo_has_common.joints import JOINT_NAMES
+from exo_has_common.topics import has_state_topic
 from exo_has_msgs.msg import SafetyEvent
-from exo_has_runtime.bag import bag_summary
-from exo_has_runtime.joints import JOINT_NAMES
-from exo_has_runtime.topics import has_state_topic
 
 pytestmark = pytest.mark.process  # every test here starts processes
 

@@ -27,7 +27,7 @@ from rosbags.interfaces import Nodetype
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from exo_has_runtime.testing.processes import NodeProcess
+from exo_has_runtime.processes import NodeProcess
 
 #: Every exo_has_msgs type and JointState, each field set, none to its default where avoidable.
 MESSAGES = {

@@ -17,10 +17,12 @@ from catkin_pkg.package import parse_package
 WORKSPACE = Path(__file__).resolve().parents[1]
 PACKAGES = {
     'exo_has_msgs': 'ament_cmake',
+    'exo_has_common': 'ament_python',
     'exo_has_runtime': 'ament_python',
     'exo_has_sim': 'ament_python',
     'exo_has_control': 'ament_python',
     'exo_has_driver': 'ament_python',
+    'exo_has_bringup': 'ament_python',
 }
 
 
@@ -33,8 +35,8 @@ def test_every_package_xml_is_a_valid_format_3_manifest(name, build_type):
     if build_type == 'ament_python':
         assert (WORKSPACE / name / 'resource' / name).is_file()
         assert (WORKSPACE / name / 'setup.cfg').read_text().count(f'$base/lib/{name}') == 2
-        assert 'exo_has_runtime' in {d.name for d in package.exec_depends} \
-            or name == 'exo_has_runtime'
+        assert 'exo_has_common' in {d.name for d in package.exec_depends} \
+            or name == 'exo_has_common'
 
 
 def test_the_message_package_is_an_interface_package():
@@ -76,7 +78,17 @@ def console_scripts(package):
     return [script.split('=')[0].strip() for script in scripts]
 
 
-@pytest.mark.parametrize('package', sorted(n for n, b in PACKAGES.items() if b == 'ament_python'))
+#: The packages with executables (nodes, exo-has); exo_has_common and exo_has_bringup have none:
+#: bringup's demo is an exo-has subcommand.
+WITH_EXECUTABLES = ('exo_has_runtime', 'exo_has_sim', 'exo_has_control', 'exo_has_driver')
+
+
+def test_only_the_packages_with_executables_declare_console_scripts():
+    assert {n for n, b in PACKAGES.items() if b == 'ament_python' and console_scripts(n)} \
+        == set(WITH_EXECUTABLES)
+
+
+@pytest.mark.parametrize('package', WITH_EXECUTABLES)
 def test_every_console_script_is_installed_where_ros2_run_looks(package):
     names = console_scripts(package)
     assert names
@@ -129,7 +141,7 @@ def test_the_installed_plant_executable_starts_publishes_and_stops_cleanly(ros_c
 
 @pytest.mark.process
 def test_the_controller_watchdog_and_driver_start_without_loading_the_simulator():
-    # They read joint names (exo_has_runtime.joints) and the PD law (exo_has_sim.control_law),
+    # They read joint names (exo_has_common.joints) and the PD law (exo_has_sim.control_law),
     # not the numba-compiled model: loading it would cost each node seconds and rewrite caches.
     code = ('import sys; import exo_has_control.pd_controller, exo_has_driver.watchdog, '
             'exo_has_driver.driver_node; '

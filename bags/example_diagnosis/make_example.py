@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT / 'test'))
 import truth_plant as tp  # noqa: E402
 from rigs import rig_file  # noqa: E402
 
-from exo_has_runtime.bag import BagWriter, default_typestore, ensure_message_type  # noqa: E402
+from exo_has_common.bag import BagWriter, default_typestore, ensure_message_type  # noqa: E402
 from exo_has_sim.diagnosis.cli import main  # noqa: E402
 from exo_has_sim.kinematics import Linkage  # noqa: E402
 

@@ -17,23 +17,19 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 
+from exo_has_common.topics import GAIT_PHASE_TOPIC, JOINT_REFERENCE_TOPIC
 from exo_has_control.trajectory import JOINTS, ReferenceTable, Schedule, TrialPlan
 from exo_has_msgs.msg import GaitPhase
 from exo_has_runtime.execution import run_node
-from exo_has_runtime.topics import GAIT_PHASE_TOPIC, JOINT_REFERENCE_TOPIC
+from exo_has_runtime.node_parameters import declare
 from exo_has_sim.gait import WINTER, load_gait_cycle
 
 MOTIONS = {'stand': GaitPhase.MOTION_STAND, 'walk': GaitPhase.MOTION_WALK,
            'squat': GaitPhase.MOTION_SQUAT}
-
-
-def _range(low: float, high: float) -> list[FloatingPointRange]:
-    return [FloatingPointRange(from_value=low, to_value=high)]
 
 
 class GaitPublisher(Node):
@@ -43,42 +39,31 @@ class GaitPublisher(Node):
         # options: Node's keyword arguments (cli_args, context, ...), so that a container
         # can compose this node with others in one process (exo_has_runtime.container).
         super().__init__('gait_publisher', **options)
-        declare = self.declare_parameter
-        motions = list(declare('motions', ['walk'], ParameterDescriptor(
-            description='trials in order: walk, squat or stand', read_only=True)).value)
-        durations = list(declare('durations', [20.0], ParameterDescriptor(
-            description='length of each trial [s], ramps included', read_only=True)).value)
-        ramp = declare('ramp', 1.0, ParameterDescriptor(
-            description='smooth start and stop of each trial [s]', read_only=True,
-            floating_point_range=_range(0.0, 60.0))).value
-        stride = declare('stride_frequency', 0.85, ParameterDescriptor(
-            description='walking strides per second [Hz] (the paper: 0.85)', read_only=True,
-            floating_point_range=_range(0.05, 3.0))).value
-        squat = declare('squat_frequency', 0.5, ParameterDescriptor(
-            description='squats per second [Hz] (the paper: 0.5)', read_only=True,
-            floating_point_range=_range(0.05, 3.0))).value
-        squat_hip = declare('squat_hip', math.radians(40.0), ParameterDescriptor(
-            description='hip flexion at the bottom of a squat [rad]', read_only=True,
-            floating_point_range=_range(0.0, 2.0))).value
-        squat_knee = declare('squat_knee', math.radians(70.0), ParameterDescriptor(
-            description='knee flexion at the bottom of a squat [rad]', read_only=True,
-            floating_point_range=_range(0.0, 2.5))).value
-        gait_file = declare('gait_file', '', ParameterDescriptor(
-            description='normative gait CSV (cycle_percent, hip_angle, knee_angle in deg); '
-                        "empty: Winter's normal-cadence table", read_only=True)).value
-        delay = declare('start_delay', 1.0, ParameterDescriptor(
-            description='time from start-up to the first reference [s], for subscribers '
-                        '(controller, recorder) to match first', read_only=True,
-            floating_point_range=_range(0.0, 60.0))).value
-        rate = declare('rate', 200.0, ParameterDescriptor(
-            description='publication rate [Hz]', read_only=True,
-            floating_point_range=_range(1.0, 2000.0))).value
-        self._subscribers = declare('wait_for_subscribers', 0, ParameterDescriptor(
-            description='subscribers of joint_reference to wait for before start_delay runs '
-                        '(a session: its controller, watchdog and recorder), since a best-effort '
-                        'reference reaches only the readers discovery has matched by then',
-            read_only=True, integer_range=[IntegerRange(from_value=0, to_value=100, step=1)])
-        ).value
+        motions = list(declare(self, 'motions', ['walk'],
+                               'trials in order: walk, squat or stand'))
+        durations = list(declare(self, 'durations', [20.0],
+                                 'length of each trial [s], ramps included'))
+        ramp = declare(self, 'ramp', 1.0, 'smooth start and stop of each trial [s]', (0.0, 60.0))
+        stride = declare(self, 'stride_frequency', 0.85,
+                         'walking strides per second [Hz] (the paper: 0.85)', (0.05, 3.0))
+        squat = declare(self, 'squat_frequency', 0.5,
+                        'squats per second [Hz] (the paper: 0.5)', (0.05, 3.0))
+        squat_hip = declare(self, 'squat_hip', math.radians(40.0),
+                            'hip flexion at the bottom of a squat [rad]', (0.0, 2.0))
+        squat_knee = declare(self, 'squat_knee', math.radians(70.0),
+                             'knee flexion at the bottom of a squat [rad]', (0.0, 2.5))
+        gait_file = declare(self, 'gait_file', '',
+                            'normative gait CSV (cycle_percent, hip_angle, knee_angle in deg); '
+                            "empty: Winter's normal-cadence table")
+        delay = declare(self, 'start_delay', 1.0,
+                        'time from start-up to the first reference [s], for subscribers '
+                        '(controller, recorder) to match first', (0.0, 60.0))
+        rate = declare(self, 'rate', 200.0, 'publication rate [Hz]', (1.0, 2000.0))
+        self._subscribers = declare(
+            self, 'wait_for_subscribers', 0,
+            'subscribers of joint_reference to wait for before start_delay runs (a session: '
+            'its controller, watchdog and recorder), since a best-effort reference reaches '
+            'only the readers discovery has matched by then', (0, 100))
         if len(motions) != len(durations):
             msg = (f'motions ({len(motions)}) and durations ({len(durations)}) must have the '
                    'same length')

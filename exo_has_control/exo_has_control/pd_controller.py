@@ -20,27 +20,31 @@ from __future__ import annotations
 from functools import partial
 from typing import Any
 
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 
-from exo_has_control.pd import PAPER_KD, PAPER_KP, PdGains, PositionLoop
-from exo_has_control.tracking import DEFAULT_REJOIN_SPEED, ReferenceFollower
-from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
-from exo_has_runtime.execution import run_node
-from exo_has_runtime.joints import JOINT_NAMES, check_joint, joint_type_of
-from exo_has_runtime.profiles import SAFETY_EVENT_QOS
-from exo_has_runtime.realtime import MAX_PRIORITY, set_realtime_priority
-from exo_has_runtime.topics import (
+from exo_has_common.joints import JOINT_NAMES, check_joint, joint_type_of
+from exo_has_common.topics import (
     JOINT_REFERENCE_TOPIC,
     SAFETY_EVENT_TOPIC,
     has_command_topic,
     has_state_topic,
 )
+from exo_has_control.pd import PAPER_KD, PAPER_KP, PdGains, PositionLoop
+from exo_has_control.tracking import DEFAULT_REJOIN_SPEED, ReferenceFollower
+from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
+from exo_has_runtime.execution import run_node
+from exo_has_runtime.node_parameters import (
+    apply_realtime_priority,
+    declare,
+    declare_realtime_priority,
+)
+from exo_has_runtime.profiles import SAFETY_EVENT_QOS
 from exo_has_sim.parameters import HasParameters, load_parameters
 
-GAIN_RANGE = [FloatingPointRange(from_value=0.0, to_value=1.0e7)]
+#: Bounds of every gain and of the motor speed limit (in their units).
+GAIN_RANGE = (0.0, 1.0e7)
 
 
 class PdController(Node):
@@ -50,27 +54,18 @@ class PdController(Node):
         # options: Node's keyword arguments (cli_args, context, ...), so that a container
         # can compose this node with others in one process (exo_has_runtime.container).
         super().__init__('pd_controller', **options)
-        joints = list(self.declare_parameter('joints', list(JOINT_NAMES), ParameterDescriptor(
-            description=f'joints controlled, among {", ".join(JOINT_NAMES)}',
-            read_only=True)).value)
+        joints = list(declare(self, 'joints', list(JOINT_NAMES),
+                              f'joints controlled, among {", ".join(JOINT_NAMES)}'))
         if not joints or len(set(joints)) != len(joints):
             msg = f'parameter joints must list distinct joints, got {joints}'
             raise ValueError(msg)
-        timeout = self.declare_parameter('reference_timeout', 0.1, ParameterDescriptor(
-            description='age [s] after which a reference is held still (its velocity dropped)',
-            read_only=True,
-            floating_point_range=[FloatingPointRange(from_value=0.001, to_value=10.0)])).value
-        rejoin_speed = self.declare_parameter(
-            'reference_rejoin_speed', DEFAULT_REJOIN_SPEED, ParameterDescriptor(
-                description='fastest cylinder speed [m/s] at which a joint joins the '
-                            'reference at the start and after a stop or a hold',
-                read_only=True,
-                floating_point_range=[FloatingPointRange(from_value=0.001, to_value=1.0)])).value
-        priority = self.declare_parameter('realtime_priority', 0, ParameterDescriptor(
-            description='SCHED_FIFO priority of the thread that answers the states (0: the '
-                        'default scheduler; needs root or CAP_SYS_NICE, see '
-                        'exo_has_runtime.realtime)', read_only=True,
-            integer_range=[IntegerRange(from_value=0, to_value=MAX_PRIORITY, step=1)])).value
+        timeout = declare(self, 'reference_timeout', 0.1,
+                          'age [s] after which a reference is held still (its velocity dropped)',
+                          (0.001, 10.0))
+        rejoin_speed = declare(self, 'reference_rejoin_speed', DEFAULT_REJOIN_SPEED,
+                               'fastest cylinder speed [m/s] at which a joint joins the '
+                               'reference at the start and after a stop or a hold', (0.001, 1.0))
+        priority = declare_realtime_priority(self, 'the thread that answers the states')
         self._loops: dict[str, PositionLoop] = {}
         self._followers: dict[str, ReferenceFollower] = {}
         self._command_publishers = {}
@@ -92,9 +87,7 @@ class PdController(Node):
         # threads, created earlier, stay ordinary. A command held up behind other processes is
         # a period of the joint without control (bench/closed_loop.py reports the longest gap
         # between commands).
-        problem = set_realtime_priority(priority)
-        if problem:
-            self.get_logger().warning(f'realtime_priority: {problem}')
+        apply_realtime_priority(self, priority)
         gains = '; '.join(f'{joint}: kp {loop.gains.kp:g}, kd {loop.gains.kd:g}, '
                           f'kff {loop.gains.kff:.5g}, limit {loop.gains.speed_limit:.5g}'
                           for joint, loop in self._loops.items())
@@ -103,12 +96,9 @@ class PdController(Node):
 
     def _joint_type_parameters(self, kind: str) -> HasParameters:
         """Declare (once) and load the parameter set of a joint type."""
-        name = f'{kind}.params'
-        if not self.has_parameter(name):
-            self.declare_parameter(name, kind, ParameterDescriptor(
-                description=f'{kind} HAS parameter set (linkage, motor limit): {kind} or a '
-                            'parameters YAML file', read_only=True))
-        return load_parameters(self.get_parameter(name).value)
+        return load_parameters(declare(
+            self, f'{kind}.params', kind,
+            f'{kind} HAS parameter set (linkage, motor limit): {kind} or a parameters YAML file'))
 
     def _gains(self, params: HasParameters) -> PdGains:
         """Declare (once) and read the gains of a joint type."""
@@ -123,13 +113,8 @@ class PdController(Node):
             ('motor_speed_limit', params.motor_speed_max,
              'motor speed saturation [rad/s] (the paper: 4000 r/min)'),
         )
-        values = {}
-        for key, default, description in specs:
-            name = f'{kind}.{key}'
-            if not self.has_parameter(name):
-                self.declare_parameter(name, float(default), ParameterDescriptor(
-                    description=description, read_only=True, floating_point_range=GAIN_RANGE))
-            values[key] = self.get_parameter(name).value
+        values = {key: declare(self, f'{kind}.{key}', float(default), description, GAIN_RANGE)
+                  for key, default, description in specs}
         if values['motor_speed_limit'] > params.motor_speed_max:
             msg = (f'{kind}.motor_speed_limit {values["motor_speed_limit"]} rad/s is above the '
                    f'motor top speed {params.motor_speed_max:.5g} rad/s')

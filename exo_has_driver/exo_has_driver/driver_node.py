@@ -27,11 +27,13 @@ measured: NaN; the valve mode is inferred, see the master), ``safety_events`` ou
 the driver's own events are ignored; a std_msgs/Empty on ``safety_reset`` asks to release the
 latched stop. The watchdog answers the same reset: the driver releases only when the newest
 event of another node says no stop is latched there (a reset that comes first waits up to
-:data:`RESET_WAIT` for the watchdog's RESET), else it refuses with a WARN event, so that the
-controllers, which resume on the driver's RESET, never move the joints under the watchdog's
-stop (:class:`ResetGate`). On shutdown the motors are stopped (quick stop) and the drives
-disabled before the bus is closed. If the master's I/O thread ends (the bus failed for good),
-the node logs FATAL and exits with status 1.
+:data:`~exo_has_driver.reset_gate.RESET_WAIT` for the watchdog's RESET), else it refuses with a
+WARN event, so that the controllers, which resume on the driver's RESET, never move the joints
+under the watchdog's stop (:class:`~exo_has_driver.reset_gate.ResetGate`). A second commander
+of a joint, or another publisher of its states, is a fault the master holds (the watchdog's
+rule, :func:`~exo_has_driver.second_source.second_source`). On shutdown the motors are stopped
+(quick stop) and the drives disabled before the bus is closed. If the master's I/O thread ends
+(the bus failed for good), the node logs FATAL and exits with status 1.
 """
 
 from __future__ import annotations
@@ -43,14 +45,20 @@ import time
 from functools import partial
 from typing import Any
 
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from std_msgs.msg import Empty
 
+from exo_has_common.joints import JOINT_NAMES, joint_type_of
+from exo_has_common.topics import (
+    SAFETY_EVENT_TOPIC,
+    SAFETY_RESET_TOPIC,
+    has_command_topic,
+    has_state_topic,
+)
 from exo_has_driver import can_dictionary as cd
 from exo_has_driver.errors import HardwareConfigError, MasterStoppedError
-from exo_has_driver.events import Condition, Event, SafetyKind, Severity
+from exo_has_driver.events import Event, SafetyKind, Severity
 from exo_has_driver.hardware.bus import open_bus
 from exo_has_driver.hardware.config import (
     DEFAULT_ACCELERATION,
@@ -58,69 +66,30 @@ from exo_has_driver.hardware.config import (
     DEFAULT_MISSING_SYNCS,
     DEFAULT_QUICK_STOP_DECELERATION,
     JointConfig,
-    JointSample,
     MasterConfig,
 )
 from exo_has_driver.hardware.master import Master
 from exo_has_driver.hardware.units import DriveUnits
-from exo_has_driver.node_parameters import checked_joints, joint_type_parameters
+from exo_has_driver.messages import log_event, safety_event
+from exo_has_driver.reset_gate import ResetGate
+from exo_has_driver.second_source import second_source
+from exo_has_driver.settings import checked_joints, joint_type_parameters
 from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
 from exo_has_runtime.execution import run_node
 from exo_has_runtime.graph import PublisherWatch
-from exo_has_runtime.joints import JOINT_NAMES, joint_type_of
-from exo_has_runtime.profiles import SAFETY_EVENT_QOS
-from exo_has_runtime.realtime import MAX_PRIORITY, set_realtime_priority
-from exo_has_runtime.topics import (
-    SAFETY_EVENT_TOPIC,
-    SAFETY_RESET_TOPIC,
-    has_command_topic,
-    has_state_topic,
+from exo_has_runtime.node_parameters import (
+    apply_realtime_priority,
+    declare,
+    declare_realtime_priority,
 )
+from exo_has_runtime.profiles import SAFETY_EVENT_QOS
+from exo_has_sim.state_message import has_state, nanoseconds, stamp_ns
 
 #: Own events remembered to recognise them on the shared topic.
 OWN_EVENTS = 256
-#: How long a reset waits for another node's (the watchdog's) release [s].
-RESET_WAIT = 1.0
 #: The interpreter's thread switch interval [s]. Python's default 5 ms, a whole SYNC period,
 #: lets the executor thread hold the GIL long enough to delay the master's SYNC by a period.
 SWITCH_INTERVAL = 5e-4
-
-
-class ResetGate:
-    """Holds a reset back while another node's (the watchdog's) stop is latched.
-
-    The newest event from another node tells whether its stop is latched. A reset is passed on
-    at once when it is not; otherwise it waits up to ``wait`` [s] for an event that says it
-    was released (the watchdog answers the same reset), and is refused after that.
-    """
-
-    def __init__(self, wait: float = RESET_WAIT) -> None:
-        self.wait = wait
-        #: Text of the newest latched event of another node; None when none holds a stop.
-        self.latched_by: str | None = None
-        self._deadline: float | None = None
-
-    def on_event(self, latched: bool, text: str) -> bool:
-        """Take another node's event; return whether a waiting reset may go on now."""
-        self.latched_by = text if latched else None
-        if latched or self._deadline is None:
-            return False
-        self._deadline = None
-        return True
-
-    def on_reset(self, now: float) -> bool:
-        """Take a reset request at ``now`` [s]; return whether it may go on now."""
-        if self.latched_by is None:
-            return True
-        self._deadline = now + self.wait
-        return False
-
-    def expired(self, now: float) -> str | None:
-        """Return the refusal text once a waiting reset ran out of time, else None."""
-        if self._deadline is None or now <= self._deadline:
-            return None
-        self._deadline = None
-        return f'reset refused: a stop latched by another node holds: {self.latched_by}'
 
 
 def master_failure(running: bool, failure: BaseException | None) -> str | None:
@@ -130,14 +99,6 @@ def master_failure(running: bool, failure: BaseException | None) -> str | None:
     return f'the CAN master stopped: {failure if failure is not None else "no reason given"}'
 
 
-def _floats(low: float, high: float) -> list[FloatingPointRange]:
-    return [FloatingPointRange(from_value=low, to_value=high)]
-
-
-def _integers(low: int, high: int) -> list[IntegerRange]:
-    return [IntegerRange(from_value=low, to_value=high, step=1)]
-
-
 class Driver(Node):
     """The HAS hardware driver: CANopen master of the joints' drives and sensor boards."""
 
@@ -145,80 +106,64 @@ class Driver(Node):
         # options: Node's keyword arguments (cli_args, context, ...), so that a container
         # can compose this node with others in one process (exo_has_runtime.container).
         super().__init__('driver', **options)
-        declare = self.declare_parameter
-
-        def read_only(description: str, **ranges: object) -> ParameterDescriptor:
-            return ParameterDescriptor(description=description, read_only=True, **ranges)
-
         # An empty list (joints:=[]) has no type in rcl and reads None: checked_joints says so.
-        joints = list(declare('joints', list(JOINT_NAMES), read_only(
-            f'joints on the bus, among {", ".join(JOINT_NAMES)}')).value or ())
-        interface = declare('interface', 'socketcan', read_only(
-            'python-can interface: socketcan (robot), udp_multicast (between processes), '
-            'virtual')).value
-        channel = declare('channel', 'can0', read_only(
-            'CAN channel: can0, or a multicast group such as 239.74.163.2')).value
-        bitrate = declare('bitrate', 1_000_000, read_only(
-            'bit rate [bit/s], for interfaces that set it',
-            integer_range=_integers(10_000, 1_000_000))).value
-        rate = declare('rate', 1.0 / cd.SYNC_PERIOD, read_only(
-            'SYNC and publishing rate [Hz] (the paper: 200)',
-            floating_point_range=_floats(10.0, 1000.0))).value
-        encoder_counts = declare('encoder_counts', cd.ENCODER_COUNTS, read_only(
-            'encoder counts per motor revolution',
-            integer_range=_integers(1, 1 << 24))).value
-        gear_ratio = declare('gear_ratio', cd.GEAR_RATIO, read_only(
-            'motor revolutions per pump revolution',
-            floating_point_range=_floats(0.01, 1000.0))).value
-        velocity_unit = declare('velocity_unit', cd.VELOCITY_UNIT, read_only(
-            'encoder counts/s per drive velocity unit (COPLEY: 0.1)',
-            floating_point_range=_floats(1e-6, 1e6))).value
-        current_unit = declare('current_unit', cd.CURRENT_UNIT, read_only(
-            'amperes per drive current unit (COPLEY: 0.01)',
-            floating_point_range=_floats(1e-6, 10.0))).value
-        heartbeat_period = declare('heartbeat_period', cd.HEARTBEAT_PERIOD, read_only(
-            'heartbeat producer time of every node [s]',
-            floating_point_range=_floats(0.001, 10.0))).value
-        heartbeat_timeout = declare('heartbeat_timeout', cd.HEARTBEAT_TIMEOUT, read_only(
-            'heartbeat consumer time [s], over heartbeat_period',
-            floating_point_range=_floats(0.002, 60.0))).value
-        missing_syncs = declare('missing_syncs', DEFAULT_MISSING_SYNCS, read_only(
-            'SYNC periods without a TPDO from a slave that are a bus fault',
-            integer_range=_integers(1, 1000))).value
-        priority = declare('realtime_priority', 0, read_only(
-            'SCHED_FIFO priority of the I/O thread that sends the SYNC (0: the default '
-            'scheduler; needs root or CAP_SYS_NICE, see exo_has_runtime.realtime)',
-            integer_range=_integers(0, MAX_PRIORITY))).value
-        acceleration = declare('acceleration', DEFAULT_ACCELERATION, read_only(
-            'profile acceleration and deceleration of the pump [rad/s^2]',
-            floating_point_range=_floats(1.0, 1e6))).value
-        quick_stop = declare('quick_stop_deceleration', DEFAULT_QUICK_STOP_DECELERATION,
-                             read_only('quick stop deceleration of the pump [rad/s^2]',
-                                       floating_point_range=_floats(1.0, 1e6))).value
-        command_timeout = declare('command_timeout', DEFAULT_COMMAND_TIMEOUT, read_only(
-            'age of the newest command after which the drive holds zero speed [s]',
-            floating_point_range=_floats(0.001, 60.0))).value
-        # Dynamically typed: an empty list default would otherwise fix the type to a byte array.
-        stop_sources = declare('stop_sources', ['/watchdog'], ParameterDescriptor(
-            description='full names of the nodes that may publish stop commands beside the '
-                        'controller (string array)', read_only=True,
-            dynamic_typing=True)).value or []
-        source_period = declare('source_check_period', 0.1, read_only(
-            "period of the search of the ROS graph for a second publisher of a joint's state "
-            'or commands [s]', floating_point_range=_floats(0.05, 10.0))).value
+        joints = list(declare(self, 'joints', list(JOINT_NAMES),
+                              f'joints on the bus, among {", ".join(JOINT_NAMES)}') or ())
+        interface = declare(self, 'interface', 'socketcan',
+                            'python-can interface: socketcan (robot), udp_multicast (between '
+                            'processes), virtual')
+        channel = declare(self, 'channel', 'can0',
+                          'CAN channel: can0, or a multicast group such as 239.74.163.2')
+        bitrate = declare(self, 'bitrate', 1_000_000,
+                          'bit rate [bit/s], for interfaces that set it', (10_000, 1_000_000))
+        rate = declare(self, 'rate', 1.0 / cd.SYNC_PERIOD,
+                       'SYNC and publishing rate [Hz] (the paper: 200)', (10.0, 1000.0))
+        encoder_counts = declare(self, 'encoder_counts', cd.ENCODER_COUNTS,
+                                 'encoder counts per motor revolution', (1, 1 << 24))
+        gear_ratio = declare(self, 'gear_ratio', cd.GEAR_RATIO,
+                             'motor revolutions per pump revolution', (0.01, 1000.0))
+        velocity_unit = declare(self, 'velocity_unit', cd.VELOCITY_UNIT,
+                                'encoder counts/s per drive velocity unit (COPLEY: 0.1)',
+                                (1e-6, 1e6))
+        current_unit = declare(self, 'current_unit', cd.CURRENT_UNIT,
+                               'amperes per drive current unit (COPLEY: 0.01)', (1e-6, 10.0))
+        heartbeat_period = declare(self, 'heartbeat_period', cd.HEARTBEAT_PERIOD,
+                                   'heartbeat producer time of every node [s]', (0.001, 10.0))
+        heartbeat_timeout = declare(self, 'heartbeat_timeout', cd.HEARTBEAT_TIMEOUT,
+                                    'heartbeat consumer time [s], over heartbeat_period',
+                                    (0.002, 60.0))
+        missing_syncs = declare(self, 'missing_syncs', DEFAULT_MISSING_SYNCS,
+                                'SYNC periods without a TPDO from a slave that are a bus fault',
+                                (1, 1000))
+        priority = declare_realtime_priority(self, 'the I/O thread that sends the SYNC')
+        acceleration = declare(self, 'acceleration', DEFAULT_ACCELERATION,
+                               'profile acceleration and deceleration of the pump [rad/s^2]',
+                               (1.0, 1e6))
+        quick_stop = declare(self, 'quick_stop_deceleration', DEFAULT_QUICK_STOP_DECELERATION,
+                             'quick stop deceleration of the pump [rad/s^2]', (1.0, 1e6))
+        command_timeout = declare(self, 'command_timeout', DEFAULT_COMMAND_TIMEOUT,
+                                  'age of the newest command after which the drive holds zero '
+                                  'speed [s]', (0.001, 60.0))
+        # An empty list (stop_sources:=[]) reads None, as joints does.
+        stop_sources = declare(self, 'stop_sources', ['/watchdog'],
+                               'full names of the nodes that may publish stop commands beside '
+                               'the controller (string array)') or []
+        source_period = declare(self, 'source_check_period', 0.1,
+                                'period of the search of the ROS graph for a second publisher '
+                                "of a joint's state or commands [s]", (0.05, 10.0))
         if not isinstance(stop_sources, list) or not all(
                 isinstance(name, str) and name.startswith('/') for name in stop_sources):
             msg = f'parameter stop_sources must list full node names, got {stop_sources!r}'
             raise HardwareConfigError(msg)
-        sources = {kind: declare(f'params_{kind}', kind, read_only(
-            f'{kind} HAS parameter set (stroke, relief and valve settings): {kind} or a '
-            'parameters YAML file')).value for kind in ('hip', 'knee')}
+        sources = {kind: declare(self, f'{kind}.params', kind,
+                                 f'{kind} HAS parameter set (stroke, relief and valve settings): '
+                                 f'{kind} or a parameters YAML file')
+                   for kind in ('hip', 'knee')}
         self._joints = checked_joints(joints, HardwareConfigError)
-        ids = {joint: (declare(f'{joint}.drive_id', cd.DRIVE_NODE_IDS[joint], read_only(
-            f'CANopen node ID of the {joint} drive', integer_range=_integers(1, 127))).value,
-                       declare(f'{joint}.sensor_id', cd.SENSOR_NODE_IDS[joint], read_only(
-            f'CANopen node ID of the {joint} sensor board',
-            integer_range=_integers(1, 127))).value)
+        ids = {joint: (declare(self, f'{joint}.drive_id', cd.DRIVE_NODE_IDS[joint],
+                               f'CANopen node ID of the {joint} drive', (1, 127)),
+                       declare(self, f'{joint}.sensor_id', cd.SENSOR_NODE_IDS[joint],
+                               f'CANopen node ID of the {joint} sensor board', (1, 127)))
                for joint in self._joints}
         params = {kind: joint_type_parameters(kind, source, HardwareConfigError)
                   for kind, source in sources.items()}
@@ -248,9 +193,7 @@ class Driver(Node):
         except BaseException:
             self._close_bus()
             raise
-        problem = set_realtime_priority(priority, self._master.io_thread_id or 0)
-        if problem:
-            self.get_logger().warning(f'realtime_priority: {problem}')
+        apply_realtime_priority(self, priority, self._master.io_thread_id or 0)
         for joint in self._joints:
             self.create_subscription(HasCommand, has_command_topic(joint),
                                      partial(self._on_command, joint), qos_profile_sensor_data)
@@ -260,8 +203,8 @@ class Driver(Node):
         self.create_timer(1.0 / rate, self._on_tick)
         # A second commander of a joint (beside the controller and stop_sources), or any other
         # publisher of the states this driver publishes: a fault the master latches and holds.
-        self._commanders = PublisherWatch(
-            self, [has_command_topic(j) for j in self._joints], ignore=stop_sources)
+        self._stop_sources = tuple(stop_sources)
+        self._commanders = PublisherWatch(self, [has_command_topic(j) for j in self._joints])
         self._state_sources = PublisherWatch(self, [has_state_topic(j) for j in self._joints])
         self._joint_of_topic = {
             topic: joint for watch in (self._commanders, self._state_sources)
@@ -278,20 +221,12 @@ class Driver(Node):
         if self._master is None:
             return
         now = time.monotonic()
-        held = []
-        for topic, names in self._commanders.poll(now).items():
-            if len(names) > 1:
-                joint = self._joint_of_topic[topic]
-                held.append(Condition(topic, joint, SafetyKind.SECOND_SOURCE, len(names), 1.0,
-                                      f'{joint}: second source: {len(names)} commanders on '
-                                      f'{topic} ({", ".join(names)}), where one is allowed'))
-        for topic, names in self._state_sources.poll(now).items():
-            if names:
-                joint = self._joint_of_topic[topic]
-                held.append(Condition(topic, joint, SafetyKind.SECOND_SOURCE,
-                                      len(names) + 1, 1.0,
-                                      f'{joint}: second source: {", ".join(names)} publishing '
-                                      f'on {topic} beside this driver'))
+        found = [second_source(self._joint_of_topic[topic], topic, names,
+                               stop_sources=self._stop_sources)
+                 for topic, names in self._commanders.poll(now).items()]
+        found += [second_source(self._joint_of_topic[topic], topic, names, own='this driver')
+                  for topic, names in self._state_sources.poll(now).items()]
+        held = [condition for condition in found if condition is not None]
         self._master.hold_conditions(held)
 
     def _on_command(self, joint: str, command: HasCommand) -> None:
@@ -305,8 +240,7 @@ class Driver(Node):
     def _on_event(self, event: SafetyEvent) -> None:
         if self._master is None or _signature(event) in self._own:
             return
-        stamp_ns = event.header.stamp.sec * 1_000_000_000 + event.header.stamp.nanosec
-        if stamp_ns < self._start_ns:
+        if stamp_ns(event.header) < self._start_ns:
             # History of a transient-local topic: only whether a stop is still latched counts.
             self._history = event
             self._gate.on_event(event.latched, event.text)
@@ -324,12 +258,14 @@ class Driver(Node):
         if history is not None and history.latched:
             master.request_stop(f'a stop latched before the driver started: {history.text}')
         for sample in master.take_samples():
-            self._state_publishers[sample.joint].publish(_state(sample))
+            self._state_publishers[sample.joint].publish(has_state(
+                sample.joint, nanoseconds(sample.stamp), sample,
+                motor_current=sample.motor_current))
         events = master.take_events()
         refused = self._gate.expired(time.monotonic())
         if refused is not None:
-            events.append(Event('', SafetyKind.E_STOP, Severity.WARN, math.nan,
-                                       math.nan, True, refused))
+            events.append(Event('', SafetyKind.E_STOP, Severity.WARN, math.nan, math.nan, True,
+                                refused))
         if events:
             self._emit(events)
         fatal = master_failure(master.running, master.failure)
@@ -338,21 +274,13 @@ class Driver(Node):
             raise MasterStoppedError(fatal)
 
     def _emit(self, events: list[Event]) -> None:
-        stamp = self.get_clock().now().to_msg()
+        now_ns = self.get_clock().now().nanoseconds
         logger = self.get_logger()
         for event in events:
-            message = SafetyEvent(joint=event.joint, kind=event.kind, severity=event.severity,
-                                  value=event.value, limit=event.limit, latched=event.latched,
-                                  text=event.text)
-            message.header.stamp = stamp
+            message = safety_event(event, now_ns)
             self._own.append(_signature(message))
             self._event_publisher.publish(message)
-            if event.severity >= Severity.ERROR:
-                logger.error(event.text)
-            elif event.severity == Severity.WARN:
-                logger.warning(event.text)
-            else:
-                logger.info(event.text)
+            log_event(logger, event)
 
     def _close_bus(self) -> None:
         master, self._master = self._master, None
@@ -370,19 +298,6 @@ class Driver(Node):
 def _signature(event: SafetyEvent) -> tuple[object, ...]:
     stamp = event.header.stamp
     return (stamp.sec, stamp.nanosec, event.kind, event.joint, event.text)
-
-
-def _state(sample: JointSample) -> HasState:
-    state = HasState(joint=sample.joint, position=sample.position, velocity=sample.velocity,
-                     pressure_a=sample.pressure_a, pressure_b=sample.pressure_b,
-                     motor_speed=sample.motor_speed,
-                     motor_speed_command=sample.motor_speed_command,
-                     motor_current=sample.motor_current, load_force=math.nan,
-                     valve_mode=sample.valve_mode)
-    seconds = math.floor(sample.stamp)
-    state.header.stamp.sec = int(seconds)
-    state.header.stamp.nanosec = min(int((sample.stamp - seconds) * 1e9), 999_999_999)
-    return state
 
 
 def main(args: list[str] | None = None) -> None:

@@ -5,8 +5,8 @@ exo_has_msgs/msg/SafetyEvent does (a test checks they agree); an :class:`Event` 
 message's content. A :class:`Condition` is a fault that holds now (a stale state, an open
 safety valve, a lost heartbeat). A :class:`StopLatch` is the one stop latch of exo_has: a FATAL
 event latches it, and only an explicit reset releases it, which it refuses while a condition
-still holds. The watchdog (:mod:`exo_has_driver.safety`) and the CANopen master
-(:mod:`exo_has_driver.hardware.master`) each hold one; what holds, and when a reset is
+still holds. The watchdog (:mod:`exo_has_driver.safety`) and the CANopen master's supervision
+(:mod:`exo_has_driver.hardware.supervision`) each hold one; what holds, and when a reset is
 complete (the master first takes its drives out of fault), is theirs to say.
 """
 

@@ -30,24 +30,14 @@ from functools import partial
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.time import Time
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Empty
 
-from exo_has_driver import safety
-from exo_has_driver.errors import SafetyConfigError
-from exo_has_driver.events import Event, Severity
-from exo_has_driver.node_parameters import checked_joints, joint_type_parameters
-from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
-from exo_has_runtime.execution import run_node
-from exo_has_runtime.graph import PublisherWatch
-from exo_has_runtime.joints import JOINT_NAMES, joint_type_of
-from exo_has_runtime.polling import Inbox
-from exo_has_runtime.profiles import DEEP_SENSOR_QOS, SAFETY_EVENT_QOS
-from exo_has_runtime.topics import (
+from exo_has_common.joints import JOINT_NAMES, joint_type_of
+from exo_has_common.topics import (
     DIAGNOSTICS_TOPIC,
     JOINT_REFERENCE_TOPIC,
     SAFETY_EVENT_TOPIC,
@@ -55,73 +45,74 @@ from exo_has_runtime.topics import (
     has_command_topic,
     has_state_topic,
 )
+from exo_has_driver import joint_watch, safety, safety_limits
+from exo_has_driver.errors import SafetyConfigError
+from exo_has_driver.events import Event, Severity
+from exo_has_driver.messages import log_event, safety_event
+from exo_has_driver.settings import checked_joints, joint_type_parameters
+from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
+from exo_has_runtime.execution import run_node
+from exo_has_runtime.graph import PublisherWatch
+from exo_has_runtime.node_parameters import declare
+from exo_has_runtime.polling import Inbox
+from exo_has_runtime.profiles import DEEP_SENSOR_QOS, SAFETY_EVENT_QOS
+from exo_has_sim.state_message import stamp_ns
 
 # The core's levels are ints; the message's constants are one byte each (bytes in rclpy).
-LEVELS = {safety.LEVEL_OK: DiagnosticStatus.OK, safety.LEVEL_WARN: DiagnosticStatus.WARN,
-          safety.LEVEL_ERROR: DiagnosticStatus.ERROR, safety.LEVEL_STALE: DiagnosticStatus.STALE}
+LEVELS = {joint_watch.LEVEL_OK: DiagnosticStatus.OK,
+          joint_watch.LEVEL_WARN: DiagnosticStatus.WARN,
+          joint_watch.LEVEL_ERROR: DiagnosticStatus.ERROR,
+          joint_watch.LEVEL_STALE: DiagnosticStatus.STALE}
 
 
-def _floats(low: float, high: float) -> list[FloatingPointRange]:
-    return [FloatingPointRange(from_value=low, to_value=high)]
-
-
-class Watchdog(Node):
+class WatchdogNode(Node):
     """Safety watchdog of the HAS joints: events, diagnostics and stop commands."""
 
     def __init__(self, **options: Any) -> None:
         # options: Node's keyword arguments (cli_args, context, ...), so that a container
         # can compose this node with others in one process (exo_has_runtime.container).
         super().__init__('watchdog', **options)
-        declare = self.declare_parameter
         # An empty list (joints:=[]) has no type in rcl and reads None: checked_joints says so.
-        joints = list(declare('joints', list(JOINT_NAMES), ParameterDescriptor(
-            description=f'joints watched, among {", ".join(JOINT_NAMES)}',
-            read_only=True)).value or ())
-        rate = declare('rate', 200.0, ParameterDescriptor(
-            description='staleness check and stop-command rate [Hz]', read_only=True,
-            floating_point_range=_floats(1.0, 2000.0))).value
-        stale_periods = declare('stale_periods', safety.DEFAULT_STALE_PERIODS,
-                                ParameterDescriptor(
-            description='control periods without a state or command before it is stale',
-            read_only=True,
-            integer_range=[IntegerRange(from_value=1, to_value=10000, step=1)])).value
-        control_rate = declare('control_rate', 200.0, ParameterDescriptor(
-            description='control rate that sets a period [Hz] (the paper: 200)',
-            read_only=True, floating_point_range=_floats(1.0, 10000.0))).value
-        tracking_limit = declare('tracking_error_limit', safety.DEFAULT_TRACKING_ERROR_LIMIT,
-                                 ParameterDescriptor(
-            description='joint tracking error that is a fault [rad] (0.35: 20 deg, the '
-                        "paper's squatting error is within -1.5/+2.5 deg)", read_only=True,
-            floating_point_range=_floats(0.01, 3.2))).value
-        tracking_time = declare('tracking_error_time', safety.DEFAULT_TRACKING_ERROR_TIME,
-                                ParameterDescriptor(
-            description='how long the tracking error must stay over its limit [s]',
-            read_only=True, floating_point_range=_floats(0.0, 10.0))).value
-        ratio = declare('over_pressure_ratio', safety.DEFAULT_OVER_PRESSURE_RATIO,
-                        ParameterDescriptor(
-            description='over-pressure warning threshold as a fraction of the relief pressure',
-            read_only=True, floating_point_range=_floats(0.5, 1.0))).value
-        margin = declare('stroke_margin', safety.DEFAULT_STROKE_MARGIN, ParameterDescriptor(
-            description='distance from a cylinder end at which it counts as reached [m]',
-            read_only=True, floating_point_range=_floats(0.0, 0.01))).value
-        grace = declare('startup_grace', safety.DEFAULT_STARTUP_GRACE, ParameterDescriptor(
-            description='time for the first state and command after start or reset [s]',
-            read_only=True, floating_point_range=_floats(0.0, 600.0))).value
-        source_period = declare('source_check_period', 0.1, ParameterDescriptor(
-            description='period of the search of the ROS graph for a second publisher of a '
-                        "joint's state or command [s]", read_only=True,
-            floating_point_range=_floats(0.05, 10.0))).value
-        batch = declare('batch', True, ParameterDescriptor(
-            description='take states, commands and references at each check, in order of '
-                        'reception (true), or by a callback per message (false: a wake-up '
-                        'each)', read_only=True)).value
-        sources = {kind: declare(f'params_{kind}', kind, ParameterDescriptor(
-            description=f'{kind} HAS parameter set: hip, knee or a parameters YAML file',
-            read_only=True)).value for kind in ('hip', 'knee')}
+        joints = list(declare(self, 'joints', list(JOINT_NAMES),
+                              f'joints watched, among {", ".join(JOINT_NAMES)}') or ())
+        rate = declare(self, 'rate', 200.0, 'staleness check and stop-command rate [Hz]',
+                       (1.0, 2000.0))
+        stale_periods = declare(self, 'stale_periods', safety_limits.DEFAULT_STALE_PERIODS,
+                                'control periods without a state or command before it is stale',
+                                (1, 10000))
+        control_rate = declare(self, 'control_rate', 200.0,
+                               'control rate that sets a period [Hz] (the paper: 200)',
+                               (1.0, 10000.0))
+        tracking_limit = declare(self, 'tracking_error_limit',
+                                 safety_limits.DEFAULT_TRACKING_ERROR_LIMIT,
+                                 'joint tracking error that is a fault [rad] (0.35: 20 deg, the '
+                                 "paper's squatting error is within -1.5/+2.5 deg)", (0.01, 3.2))
+        tracking_time = declare(self, 'tracking_error_time',
+                                safety_limits.DEFAULT_TRACKING_ERROR_TIME,
+                                'how long the tracking error must stay over its limit [s]',
+                                (0.0, 10.0))
+        ratio = declare(self, 'over_pressure_ratio', safety_limits.DEFAULT_OVER_PRESSURE_RATIO,
+                        'over-pressure warning threshold as a fraction of the relief pressure',
+                        (0.5, 1.0))
+        margin = declare(self, 'stroke_margin', safety_limits.DEFAULT_STROKE_MARGIN,
+                         'distance from a cylinder end at which it counts as reached [m]',
+                         (0.0, 0.01))
+        grace = declare(self, 'startup_grace', safety_limits.DEFAULT_STARTUP_GRACE,
+                        'time for the first state and command after start or reset [s]',
+                        (0.0, 600.0))
+        source_period = declare(self, 'source_check_period', 0.1,
+                                'period of the search of the ROS graph for a second publisher '
+                                "of a joint's state or command [s]", (0.05, 10.0))
+        batch = declare(self, 'batch', True,
+                        'take states, commands and references at each check, in order of '
+                        'reception (true), or by a callback per message (false: a wake-up each)')
+        sources = {kind: declare(self, f'{kind}.params', kind,
+                                 f'{kind} HAS parameter set: hip, knee or a parameters YAML file')
+                   for kind in ('hip', 'knee')}
         self._joints = checked_joints(joints, SafetyConfigError)
         params = {kind: joint_type_parameters(kind, source, SafetyConfigError)
                   for kind, source in sources.items()}
-        self._limits = {joint: safety.SafetyLimits.from_parameters(
+        self._limits = {joint: safety_limits.SafetyLimits.from_parameters(
             params[joint_type_of(joint)], over_pressure_ratio=ratio, stroke_margin=margin,
             tracking_error_limit=tracking_limit, tracking_error_time=tracking_time,
             stale_periods=stale_periods, control_rate=control_rate, startup_grace=grace)
@@ -224,9 +215,8 @@ class Watchdog(Node):
 
     def _take_command(self, joint: str, command: HasCommand, now: Time, t: float,
                       core: safety.Watchdog) -> None:
-        stamp_ns = command.header.stamp.sec * 1_000_000_000 + command.header.stamp.nanosec
         if not command.enable and command.motor_speed == 0.0 \
-                and stamp_ns <= self._released_ns:
+                and stamp_ns(command.header) <= self._released_ns:
             return  # one of our own stop commands, still in flight when the stop was released
         self._emit(now, core.on_command(joint, t, command.motor_speed, command.enable))
 
@@ -303,18 +293,10 @@ class Watchdog(Node):
 
     def _emit(self, now: Time, events: list[Event]) -> None:
         """Publish and log events; a fatal one sends the stop commands at once."""
+        logger = self.get_logger()
         for event in events:
-            message = SafetyEvent(joint=event.joint, kind=event.kind, severity=event.severity,
-                                  value=event.value, limit=event.limit, latched=event.latched,
-                                  text=event.text)
-            message.header.stamp = now.to_msg()
-            self._event_publisher.publish(message)
-            if event.severity >= Severity.ERROR:
-                self.get_logger().error(event.text)
-            elif event.severity == Severity.WARN:
-                self.get_logger().warning(event.text)
-            else:
-                self.get_logger().info(event.text)
+            self._event_publisher.publish(safety_event(event, now.nanoseconds))
+            log_event(logger, event)
         if any(event.severity == Severity.FATAL for event in events):
             self._send_stop(now)
 
@@ -338,7 +320,7 @@ class Watchdog(Node):
 
 def main(args: list[str] | None = None) -> None:
     """Run the watchdog until interrupted."""
-    run_node(Watchdog, args, name='watchdog')
+    run_node(WatchdogNode, args, name='watchdog')
 
 
 if __name__ == '__main__':

@@ -8,19 +8,17 @@ import struct
 
 import canopen
 import pytest
-from test_devices_slave import FakeClock, Master, _bench, statusword_of  # noqa: F401
+from devices_bench import Bench, BenchMaster, FakeClock
 
 from exo_has_driver import can_dictionary as cd
-from exo_has_driver.devices import Rig
 from exo_has_driver.devices.drive import motor_current, ramp
 from exo_has_driver.hardware.cia402 import decode_state
 from exo_has_sim.plant import PlantSample
 
-Bench = tuple[Rig, Master, FakeClock]
 DRIVE_TPDO, BOARD_TPDO1, BOARD_TPDO2 = 0x181, 0x191, 0x291
 
 
-def command(master: Master, clock: FakeClock, controlword: int,
+def command(master: BenchMaster, clock: FakeClock, controlword: int,
             target: int = 0) -> tuple[str, int, int]:
     """Send RPDO1 and a SYNC; return the state, velocity actual and current of the TPDO."""
     master.send(cd.RPDO1_BASE + 1, cd.DRIVE_RPDO1.pack(controlword, target))
@@ -29,7 +27,7 @@ def command(master: Master, clock: FakeClock, controlword: int,
     return decode_state(statusword), velocity, current
 
 
-def enable(master: Master, clock: FakeClock) -> None:
+def enable(master: BenchMaster, clock: FakeClock) -> None:
     master.nmt(0x01)
     states = [command(master, clock, cw)[0] for cw in (0x06, 0x07, 0x0F)]
     assert states == ['ready to switch on', 'switched on', 'operation enabled']

@@ -6,18 +6,16 @@ import math
 import time
 
 import pytest
-from test_devices_slave import FakeClock, Master, _bench  # noqa: F401
+from devices_bench import Bench, BenchMaster, FakeClock
 
 from exo_has_driver import can_dictionary as cd
-from exo_has_driver.devices import Rig
 from exo_has_driver.devices.sensor_board import encode_reading
 from exo_has_driver.errors import FaultInjectionError
 
-Bench = tuple[Rig, Master, FakeClock]
 TPDO1, TPDO2 = 0x191, 0x291
 
 
-def sample(master: Master, clock: FakeClock) -> tuple[tuple[int, ...], tuple[int, ...]]:
+def sample(master: BenchMaster, clock: FakeClock) -> tuple[tuple[int, ...], tuple[int, ...]]:
     tpdo1, tpdo2 = master.sync(clock, expect=(TPDO1, TPDO2))
     return cd.SENSOR_TPDO1.unpack(tpdo1), cd.SENSOR_TPDO2.unpack(tpdo2)
 

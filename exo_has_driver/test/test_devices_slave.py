@@ -1,162 +1,23 @@
 """CiA 301 services of the simulated devices: boot-up, NMT, heartbeats, SDO, PDO configuration.
 
-Also home of the small test master (python-can and canopen's SDO client on a virtual bus) the
-other test_devices_* files import.
+The bench (a small master and a fake clock) is devices_bench.py's, the fixtures conftest.py's.
 """
 
 from __future__ import annotations
 
 import struct
-import threading
 import time
-import uuid
-from collections.abc import Callable, Iterator
 
-import can
 import canopen
 import pytest
+from devices_bench import TIMEOUT, Bench, LiveBench, statusword_of
 
 from exo_has_driver import can_dictionary as cd
-from exo_has_driver.devices import Rig
-from exo_has_driver.devices.drive import DRIVE_EDS
-from exo_has_driver.devices.sensor_board import SENSOR_BOARD_EDS
 from exo_has_driver.hardware.cia402 import decode_state
-from exo_has_sim.kinematics import Linkage
-from exo_has_sim.parameters import load_parameters
-
-TIMEOUT = 5.0  # s: generous, the machine is shared
-
-
-class FakeClock:
-    """A clock the test moves by hand [s]."""
-
-    def __init__(self) -> None:
-        self.now = 100.0
-
-    def __call__(self) -> float:
-        """Return the time [s]."""
-        return self.now
-
-
-class Master(can.Listener):
-    """A minimal CANopen master: raw frames in and out, and canopen's SDO client."""
-
-    def __init__(self, channel: str) -> None:
-        self.frames: list[tuple[int, bytes]] = []
-        self._condition = threading.Condition()
-        self.network = canopen.Network(can.Bus(interface='virtual', channel=channel))
-        self.network.NOTIFIER_CYCLE = 0.1  # quicker teardown
-        self.network.listeners.append(self)
-        self.network.connect()
-        self.nodes: dict[int, canopen.RemoteNode] = {}
-
-    def on_message_received(self, msg: can.Message) -> None:
-        """Keep every received frame."""
-        with self._condition:
-            self.frames.append((msg.arbitration_id, bytes(msg.data)))
-            self._condition.notify_all()
-
-    def node(self, node_id: int) -> canopen.RemoteNode:
-        """Return the canopen node (SDO client) of ``node_id``."""
-        if node_id not in self.nodes:
-            eds = DRIVE_EDS if node_id < 16 else SENSOR_BOARD_EDS
-            node = canopen.RemoteNode(node_id, str(eds))
-            node.sdo.RESPONSE_TIMEOUT = TIMEOUT
-            self.network.add_node(node)
-            self.nodes[node_id] = node
-        return self.nodes[node_id]
-
-    def send(self, cob_id: int, data: bytes = b'') -> None:
-        """Send one frame."""
-        self.network.send_message(cob_id, data)
-
-    def nmt(self, command: int, node_id: int = 0) -> None:
-        """Send an NMT command."""
-        self.send(0, bytes((command, node_id)))
-
-    def heartbeat(self) -> None:
-        """Send the master's heartbeat (operational)."""
-        self.send(cd.HEARTBEAT_BASE + cd.MASTER_NODE_ID, b'\x05')
-
-    def clear(self) -> None:
-        """Forget the frames received so far."""
-        with self._condition:
-            self.frames.clear()
-
-    def wait_for(self, cob_id: int, count: int = 1, timeout: float = TIMEOUT,
-                 where: Callable[[bytes], bool] = lambda data: True) -> list[bytes]:
-        """Wait until ``count`` frames of ``cob_id`` (matching ``where``) came; return them."""
-        deadline = time.monotonic() + timeout
-        with self._condition:
-            while True:
-                found = [d for c, d in self.frames if c == cob_id and where(d)]
-                if len(found) >= count:
-                    return found
-                left = deadline - time.monotonic()
-                if left <= 0.0:
-                    msg = f'{len(found)} of {count} frames 0x{cob_id:03X} within {timeout} s'
-                    raise AssertionError(msg)
-                self._condition.wait(left)
-
-    def sync(self, clock: FakeClock | None = None, step: float = cd.SYNC_PERIOD,
-             expect: tuple[int, ...] = ()) -> list[bytes]:
-        """Move the fake clock, send SYNC, wait for the TPDOs ``expect``; return the last ones."""
-        before = {cob: len([1 for c, _ in self.frames if c == cob]) for cob in expect}
-        if clock is not None:
-            clock.now += step
-        self.send(cd.SYNC_COB_ID)
-        return [self.wait_for(cob, before[cob] + 1)[-1] for cob in expect]
-
-    def close(self) -> None:
-        """Disconnect from the bus."""
-        self.network.disconnect()
-
-
-def statusword_of(data: bytes) -> int:
-    return int(cd.DRIVE_TPDO1.unpack(data)[0])
-
-
-@pytest.fixture(name='bench')
-def _bench() -> Iterator[tuple[Rig, Master, FakeClock]]:
-    """Yield a rig of the left hip on a fresh virtual bus, a master, and the rig's fake clock.
-
-    The hip starts at mid-stroke (21 deg of flexion), so that a drive test has room to move
-    either way: standing it is 8 mm from the extended end of its 40 mm stroke.
-    """
-    hip = load_parameters('hip')
-    mid_stroke = float(Linkage.from_parameters(hip).angle(hip.stroke / 2.0))
-    channel = f'devices-{uuid.uuid4().hex}'
-    bus = can.Bus(interface='virtual', channel=channel)
-    master = Master(channel)
-    clock = FakeClock()
-    rig = Rig(bus, ['left_hip'], clock=clock, initial_angle=mid_stroke)
-    rig.start()
-    try:
-        yield rig, master, clock
-    finally:
-        rig.stop()
-        master.close()
-        bus.shutdown()
-
-
-@pytest.fixture(name='live_bench')
-def _live_bench() -> Iterator[tuple[Rig, Master]]:
-    """Yield a rig of the left hip and right knee on the wall clock, and a master."""
-    channel = f'devices-{uuid.uuid4().hex}'
-    bus = can.Bus(interface='virtual', channel=channel)
-    master = Master(channel)
-    rig = Rig(bus, ['left_hip', 'right_knee'])
-    rig.start()
-    try:
-        yield rig, master
-    finally:
-        rig.stop()
-        master.close()
-        bus.shutdown()
 
 
 def test_every_device_sends_a_boot_up_then_heartbeats_in_pre_operational(
-        live_bench: tuple[Rig, Master]) -> None:
+        live_bench: LiveBench) -> None:
     _, master = live_bench
     for node_id in (1, 4, 17, 20):
         assert master.wait_for(cd.HEARTBEAT_BASE + node_id)[0] == b'\x00'
@@ -166,7 +27,7 @@ def test_every_device_sends_a_boot_up_then_heartbeats_in_pre_operational(
 
 
 def test_nmt_start_stop_and_reset_node_change_the_state_the_heartbeat_reports(
-        live_bench: tuple[Rig, Master]) -> None:
+        live_bench: LiveBench) -> None:
     rig, master = live_bench
     drive = master.node(1)
     drive.sdo[cd.PROFILE_ACCELERATION].raw = 12345
@@ -190,7 +51,7 @@ def test_nmt_start_stop_and_reset_node_change_the_state_the_heartbeat_reports(
 
 
 def test_sdo_reads_the_identity_device_name_and_fixed_pdo_mappings(
-        live_bench: tuple[Rig, Master]) -> None:
+        live_bench: LiveBench) -> None:
     _, master = live_bench
     drive, board = master.node(4), master.node(20)
     assert drive.sdo[0x1000].raw == 0x00020192
@@ -218,7 +79,7 @@ def test_sdo_reads_the_identity_device_name_and_fixed_pdo_mappings(
 
 
 def test_rewriting_the_same_mapping_is_accepted_and_a_different_one_is_aborted(
-        live_bench: tuple[Rig, Master]) -> None:
+        live_bench: LiveBench) -> None:
     _, master = live_bench
     drive, board = master.node(1), master.node(17)
     drive.rpdo.read()
@@ -249,7 +110,7 @@ def test_rewriting_the_same_mapping_is_accepted_and_a_different_one_is_aborted(
 
 
 def test_a_segmented_download_is_stored_like_an_expedited_one(
-        live_bench: tuple[Rig, Master]) -> None:
+        live_bench: LiveBench) -> None:
     _, master = live_bench
     drive = master.node(1)
     drive.sdo.download(cd.PROFILE_DECELERATION, 0, struct.pack('<I', 7_654_321),
@@ -260,7 +121,7 @@ def test_a_segmented_download_is_stored_like_an_expedited_one(
 
 
 def test_pdos_are_exchanged_only_in_nmt_operational(
-        bench: tuple[Rig, Master, FakeClock]) -> None:
+        bench: Bench) -> None:
     rig, master, clock = bench
     master.sync(clock)
     time.sleep(0.1)

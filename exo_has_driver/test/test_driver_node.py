@@ -16,17 +16,17 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from std_msgs.msg import Empty
 
-from exo_has_driver.driver_node import ResetGate, master_failure
-from exo_has_driver.hardware.bus import random_multicast_group
-from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
-from exo_has_runtime.profiles import SAFETY_EVENT_QOS
-from exo_has_runtime.testing.processes import NodeProcess
-from exo_has_runtime.topics import (
+from exo_has_common.topics import (
     SAFETY_EVENT_TOPIC,
     SAFETY_RESET_TOPIC,
     has_command_topic,
     has_state_topic,
 )
+from exo_has_driver.driver_node import master_failure
+from exo_has_driver.hardware.bus import random_multicast_group
+from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
+from exo_has_runtime.processes import NodeProcess
+from exo_has_runtime.profiles import SAFETY_EVENT_QOS
 
 DRIVER = 'exo_has_driver.driver_node'
 JOINTS = ('left_hip', 'right_knee')
@@ -306,8 +306,8 @@ def test_a_second_source_of_a_joints_state_stops_every_joint_until_it_is_gone(pe
         event = peers.wait_event(SafetyEvent.KIND_SECOND_SOURCE)
         assert (event.joint, event.severity, event.latched) == (
             'left_hip', SafetyEvent.SEVERITY_FATAL, True)
-        assert event.text == ('left_hip: second source: /driver_peers publishing on '
-                              '/left_hip/has_state beside this driver')
+        assert event.text == ('left_hip: second source: 2 publishers on /left_hip/has_state '
+                              '(/driver_peers, this driver), where one is allowed')
         assert peers.run(WAIT, lambda: peers.speeds_near(0.0, 0.5)), driver.output
         # A reset is refused while it is there, and accepted once it is gone.
         count = len(peers.events)
@@ -337,7 +337,7 @@ def test_a_second_source_of_a_joints_state_stops_every_joint_until_it_is_gone(pe
 @pytest.mark.parametrize(('override', 'message'), [
     ('joints:=[left_hip,left_ankle]',
      "cannot start: parameter joints: unknown joint 'left_ankle': expected one of left_hip"),
-    ('params_knee:=hip', 'cannot start: parameter params_knee: hip is a hip parameter set'),
+    ('knee.params:=hip', 'cannot start: parameter knee.params: hip is a hip parameter set'),
     ('missing_syncs:=0', 'cannot start: .*Parameter missing_syncs out of range. Min: 1'),
     ('rate:=200', "cannot start: Trying to set parameter 'rate' to '200' of type 'INTEGER', "
                   "expecting type 'DOUBLE'"),
@@ -348,22 +348,6 @@ def test_a_bad_setting_ends_the_driver_at_start_naming_it(override, message):
         assert driver.wait(timeout_s=30.0) == 1
         driver.wait_for_output(message, timeout_s=0.1)
         assert 'Traceback' not in driver.output
-
-
-def test_the_reset_gate_passes_a_reset_only_when_no_other_node_holds_a_stop():
-    gate = ResetGate(wait=1.0)
-    assert gate.on_reset(10.0)  # nothing latched elsewhere: at once
-    assert not gate.on_event(True, 'watchdog: stale state')
-    assert not gate.on_reset(11.0)  # waits for the watchdog's answer to the same reset
-    assert gate.expired(11.5) is None
-    assert gate.on_event(False, 'reset: stop released')  # released: the reset goes on
-    assert gate.expired(13.0) is None
-    gate.on_event(True, 'watchdog: stale state')
-    assert not gate.on_reset(20.0)
-    assert not gate.on_event(True, 'reset refused: stale state holds')
-    assert gate.expired(21.5) == ('reset refused: a stop latched by another node holds: '
-                                  'reset refused: stale state holds')
-    assert not gate.on_event(False, 'reset: stop released')  # no reset waits any more
 
 
 def test_a_master_whose_io_thread_ended_is_fatal_with_its_failure():

@@ -4,19 +4,14 @@ import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticStatus
 
-from exo_has_driver import safety
+from exo_has_common.joints import JOINT_NAMES
+from exo_has_driver import joint_watch
 from exo_has_driver.errors import SafetyConfigError
 from exo_has_driver.events import SafetyKind, Severity
-from exo_has_driver.safety import (
-    LEVEL_ERROR,
-    LEVEL_OK,
-    LEVEL_STALE,
-    LEVEL_WARN,
-    SafetyLimits,
-    Watchdog,
-)
+from exo_has_driver.joint_watch import LEVEL_ERROR, LEVEL_OK, LEVEL_STALE, LEVEL_WARN
+from exo_has_driver.safety import Watchdog
+from exo_has_driver.safety_limits import SafetyLimits
 from exo_has_msgs.msg import HasState, SafetyEvent
-from exo_has_runtime.joints import JOINT_NAMES
 from exo_has_sim.kinematics import Linkage
 from exo_has_sim.parameters import load_parameters
 from exo_has_sim.valve import ValveMode
@@ -77,7 +72,7 @@ def test_kinds_severities_valve_modes_and_levels_are_numbered_as_the_messages():
     assert SafetyKind.E_STOP.label == 'emergency stop'
     # The core's levels are ints; the message's byte constants are one byte each in rclpy.
     for name in ('OK', 'WARN', 'ERROR', 'STALE'):
-        assert bytes([getattr(safety, f'LEVEL_{name}')]) == getattr(DiagnosticStatus, name)
+        assert bytes([getattr(joint_watch, f'LEVEL_{name}')]) == getattr(DiagnosticStatus, name)
 
 
 def test_limits_come_from_the_parameter_sets_and_the_control_period():

@@ -2,6 +2,7 @@
 
 import math
 import time
+from pathlib import Path
 
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
@@ -10,17 +11,17 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from std_msgs.msg import Empty
 
-from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
-from exo_has_runtime.joints import JOINT_NAMES
-from exo_has_runtime.profiles import SAFETY_EVENT_QOS
-from exo_has_runtime.testing.processes import NodeProcess
-from exo_has_runtime.topics import (
+from exo_has_common.joints import JOINT_NAMES
+from exo_has_common.topics import (
     DIAGNOSTICS_TOPIC,
     SAFETY_EVENT_TOPIC,
     SAFETY_RESET_TOPIC,
     has_command_topic,
     has_state_topic,
 )
+from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
+from exo_has_runtime.processes import NodeProcess
+from exo_has_runtime.profiles import SAFETY_EVENT_QOS
 from exo_has_sim.parameters import load_parameters
 
 MID = 0.5 * load_parameters('hip').stroke  # m, mid stroke (every joint's cylinder alike)
@@ -264,7 +265,7 @@ def test_a_late_joiner_learns_of_the_latched_stop_that_silence_caused(make_rig):
     ('rate:=fast', "cannot start: Trying to set parameter 'rate' to 'fast' of type 'STRING', "
                    "expecting type 'DOUBLE'"),
     ('joints:=[]', 'cannot start: parameter joints is empty'),
-    ('params_knee:=hip', 'cannot start: parameter params_knee: hip is a hip parameter set'),
+    ('knee.params:=hip', 'cannot start: parameter knee.params: hip is a hip parameter set'),
 ])
 def test_a_bad_setting_ends_the_node_at_start_naming_it(override, message):
     with NodeProcess(WATCHDOG, ['--ros-args', '-p', override]) as watchdog:
@@ -290,10 +291,10 @@ def test_messages_taken_after_a_hold_up_inside_a_check_are_dated_when_they_came(
     # descheduled: a two-host session saw 0.5 s), it dated each message by its age at the end of
     # the hold-up, from the clock read before it: every one too early by the hold-up, so that
     # at that check every joint looked stale (a FATAL stop in test_two_hosts.py, 2026-11-26).
-    from exo_has_driver.watchdog import Watchdog
+    from exo_has_driver.watchdog import WatchdogNode
     from exo_has_runtime.polling import Taken
 
-    node = Watchdog(context=ros_context)
+    node = WatchdogNode(context=ros_context)
     try:
         queued = [Taken(has_state_topic(joint), HasState(
             joint=joint, position=MID, pressure_a=5.0e6, pressure_b=1.0e6,
@@ -309,3 +310,29 @@ def test_messages_taken_after_a_hold_up_inside_a_check_are_dated_when_they_came(
             assert node._core._joints[joint].state_time == pytest.approx(t, abs=0.05), joint
     finally:
         node.destroy_node()
+
+
+def test_the_shipped_parameters_file_sets_parameters_the_node_declares(ros_context, tmp_path):
+    # rclpy ignores a name the node does not declare (a misspelt or renamed one) in silence.
+    # A joint type's parameter set is hip.params and knee.params, as in the controller: the
+    # file nests them under hip and knee.
+    from rclpy.parameter import parameter_dict_from_yaml_file, parameter_value_to_python
+
+    from exo_has_driver.errors import SafetyConfigError
+    from exo_has_driver.watchdog import WatchdogNode
+
+    path = Path(__file__).resolve().parents[1] / 'config' / 'watchdog.yaml'
+    written = {name: parameter_value_to_python(parameter.value) for name, parameter
+               in parameter_dict_from_yaml_file(str(path), use_wildcard=True).items()}
+    assert written['hip.params'] == 'hip' and written['knee.params'] == 'knee'
+    node = WatchdogNode(context=ros_context, cli_args=['--ros-args', '--params-file', str(path)])
+    try:
+        assert [name for name in written if not node.has_parameter(name)] == []
+        assert {name: node.get_parameter(name).value for name in written} == written
+    finally:
+        node.destroy_node()
+    wrong = tmp_path / 'watchdog.yaml'
+    wrong.write_text(path.read_text().replace('knee:\n      params: knee',
+                                              'knee:\n      params: hip'))
+    with pytest.raises(SafetyConfigError, match=r'parameter knee\.params: hip is a hip parameter'):
+        WatchdogNode(context=ros_context, cli_args=['--ros-args', '--params-file', str(wrong)])

@@ -19,7 +19,8 @@ from typing import Any
 from rclpy.impl.implementation_singleton import rclpy_implementation
 from rclpy.serialization import deserialize_message
 
-from exo_has_runtime.errors import MalformedMessageError, UnknownMessageTypeError
+from exo_has_common.errors import UnknownMessageTypeError
+from exo_has_runtime.errors import MalformedMessageError
 
 
 def split_type_name(type_name: str) -> tuple[str, str]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-from exo_has_runtime.topics import SAFETY_EVENT_DEPTH
+from exo_has_common.topics import SAFETY_EVENT_DEPTH
 
 #: ``safety_events``: reliable and transient local, so that a node started later (a controller,
 #: a recorder) still learns of a latched stop.

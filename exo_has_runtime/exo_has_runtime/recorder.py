@@ -13,7 +13,7 @@ Whether simulated time is active is checked again every ``discovery_period``. To
 come from graph discovery, every ``discovery_period``; a topic is subscribed once it has a
 publisher, with the QoS :mod:`exo_has_runtime.recording` derives from the publishers' offers.
 A topic that came steadily and stops for a while (a lost link) is logged as a gap when it
-comes back (:mod:`exo_has_runtime.bags.gaps`; ``exo-has bag info`` lists them from the bag).
+comes back (:mod:`exo_has_common.bags.gaps`; ``exo-has bag info`` lists them from the bag).
 The bag is flushed as a complete chunk every ``flush_period``, so a killed recorder loses at
 most that much (``exo-has bag recover``), and is closed (``metadata.yaml`` written, after a
 last batch is taken) when the node is destroyed, which
@@ -33,9 +33,9 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.subscription import Subscription
 
-from exo_has_runtime.bag import BagWriter, offered_qos
-from exo_has_runtime.bags.gaps import Gap, GapFinder
-from exo_has_runtime.errors import BagError
+from exo_has_common.bag import BagWriter, offered_qos
+from exo_has_common.bags.gaps import Gap, GapFinder
+from exo_has_common.errors import BagError
 from exo_has_runtime.execution import run_node
 from exo_has_runtime.message_types import message_class
 from exo_has_runtime.polling import Inbox, Taken

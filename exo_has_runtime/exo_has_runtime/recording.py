@@ -20,10 +20,10 @@ from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
-from typing import Protocol
 
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosReliability
 
+from exo_has_common.bags.qos import OfferedProfile
 from exo_has_runtime.errors import ReplayError
 
 #: Where bags go when the recorder is given no output (nodes run from a temporary folder, so
@@ -51,22 +51,6 @@ class QosChoice:
     reliable: bool
     transient_local: bool
     depth: int
-
-
-class OfferedProfile(Protocol):
-    """What :func:`subscription_qos` reads of an rclpy ``QoSProfile``."""
-
-    @property
-    def history(self) -> int: ...  # noqa: D102
-
-    @property
-    def depth(self) -> int: ...  # noqa: D102
-
-    @property
-    def reliability(self) -> int: ...  # noqa: D102
-
-    @property
-    def durability(self) -> int: ...  # noqa: D102
 
 
 def bag_path(output: str, now: datetime) -> Path:

@@ -23,8 +23,9 @@ from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 
-from exo_has_runtime.bag import BagMessage, bag_topics, read_messages
-from exo_has_runtime.errors import BagError, ReplayError, UnknownMessageTypeError
+from exo_has_common.bag import BagMessage, bag_topics, read_messages
+from exo_has_common.errors import BagError, UnknownMessageTypeError
+from exo_has_runtime.errors import ReplayError
 from exo_has_runtime.execution import run_node
 from exo_has_runtime.message_types import message_class
 from exo_has_runtime.recorder import qos_profile

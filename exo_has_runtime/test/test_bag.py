@@ -18,9 +18,8 @@ from rosbags.rosbag2 import Reader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from sensor_msgs.msg import JointState
 
-from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
-from exo_has_runtime import bag as bag_module
-from exo_has_runtime.bag import (
+from exo_has_common import bag as bag_module
+from exo_has_common.bag import (
     BagWriter,
     bag_summary,
     bag_topics,
@@ -30,14 +29,15 @@ from exo_has_runtime.bag import (
     msg_file,
     read_messages,
 )
-from exo_has_runtime.cli import subcommands
-from exo_has_runtime.errors import (
+from exo_has_common.errors import (
     BagError,
     BagNotFoundError,
     MalformedBagError,
     UnfinishedBagError,
     UnknownMessageTypeError,
 )
+from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
+from exo_has_runtime.cli import subcommands
 
 MSG_DIR = Path(__file__).resolve().parents[2] / 'exo_has_msgs' / 'msg'
 T0_NS = 1_700_000_000_000_000_000

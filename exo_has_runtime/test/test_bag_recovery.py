@@ -12,14 +12,9 @@ from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.rosbag2 import Reader
 from sensor_msgs.msg import JointState
 
+from exo_has_common.bag import BagWriter, McapRecordReader, read_messages, recover_bag
+from exo_has_common.errors import BagError, BagNotFoundError, MalformedBagError, UnfinishedBagError
 from exo_has_msgs.msg import HasCommand
-from exo_has_runtime.bag import BagWriter, McapRecordReader, read_messages, recover_bag
-from exo_has_runtime.errors import (
-    BagError,
-    BagNotFoundError,
-    MalformedBagError,
-    UnfinishedBagError,
-)
 from exo_has_runtime.recording import replay_qos
 
 T0_NS = 1_700_000_000_000_000_000
@@ -175,7 +170,7 @@ def test_a_writer_killed_mid_write_is_recovered_with_every_message_it_flushed(tm
         'import sys, time\n'
         'from rclpy.serialization import serialize_message\n'
         'from exo_has_msgs.msg import HasCommand\n'
-        'from exo_has_runtime.bag import BagWriter\n'
+        'from exo_has_common.bag import BagWriter\n'
         'writer = BagWriter(sys.argv[1])\n'
         'writer.add_topic("/cmd", "exo_has_msgs/msg/HasCommand")\n'
         'for i in range(10**9):\n'

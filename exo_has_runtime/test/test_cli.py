@@ -5,7 +5,7 @@ from importlib.metadata import entry_points
 import pytest
 
 from exo_has_runtime.cli import main, subcommands
-from exo_has_runtime.testing.processes import NodeProcess
+from exo_has_runtime.processes import NodeProcess
 
 # Subcommands this workspace's packages register in their setup.py.
 REGISTERED = {'bag', 'demo', 'design-check', 'diagnose', 'replay'}
@@ -38,9 +38,9 @@ def test_help_lists_the_subcommands(capsys):
 
 @pytest.mark.process
 def test_the_demonstration_nodes_exchange_commands_and_states_for_every_joint():
-    with NodeProcess('exo_has_runtime.demo.state_echo'):
+    with NodeProcess('exo_has_runtime.examples.state_echo'):
         time.sleep(1.0)  # let the echo subscribe first
-        talker = NodeProcess('exo_has_runtime.demo.command_talker',
+        talker = NodeProcess('exo_has_runtime.examples.command_talker',
                              ['--ros-args', '-p', 'duration:=2.5'])
         assert talker.wait(timeout_s=60) == 0, talker.output
     output = talker.output

@@ -11,7 +11,7 @@ import pytest
 
 from exo_has_runtime.container import ComponentSpec, node_class, split_arguments
 from exo_has_runtime.errors import ContainerArgumentError
-from exo_has_runtime.testing.processes import NodeProcess
+from exo_has_runtime.processes import NodeProcess
 
 
 def test_arguments_before_the_first_node_are_global_and_each_node_keeps_its_own():

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from exo_has_common.joints import JOINT_NAMES
+from exo_has_common.topics import has_command_topic
 from exo_has_runtime.dds import (
     RMW_LOCALHOST_ENVIRONMENT,
     configure_transport,
@@ -21,9 +23,7 @@ from exo_has_runtime.dds import (
     write_profile,
 )
 from exo_has_runtime.errors import DdsConfigurationError
-from exo_has_runtime.joints import JOINT_NAMES
-from exo_has_runtime.testing.processes import NodeProcess
-from exo_has_runtime.topics import has_command_topic
+from exo_has_runtime.processes import NodeProcess
 
 NAMESPACE = {'p': 'http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles'}
 
@@ -184,9 +184,9 @@ def test_an_exo_has_process_maps_no_shared_memory_under_localhost_or_subnet():
 @pytest.mark.process
 def test_nodes_on_udp_find_each_other_under_localhost(tmp_path: Path):
     # The test process runs under LOCALHOST, configured by conftest.py as every node is.
-    with NodeProcess('exo_has_runtime.demo.command_talker', ('--ros-args', '-p', 'rate:=50.0'),
+    with NodeProcess('exo_has_runtime.examples.command_talker', ('--ros-args', '-p', 'rate:=50.0'),
                      log_path=tmp_path / 'talker.log') as talker, \
-            NodeProcess('exo_has_runtime.testing.peers', (
+            NodeProcess('exo_has_runtime.topic_tool', (
                 'record', *(f'{has_command_topic(j)}=exo_has_msgs/msg/HasCommand'
                             for j in JOINT_NAMES),
                 '--count', '20', '--duration', '20', '--qos', 'best_effort,volatile,10'),

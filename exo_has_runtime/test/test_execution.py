@@ -11,7 +11,7 @@ from rclpy.node import Node
 
 from exo_has_msgs.msg import HasCommand
 from exo_has_runtime.execution import executor_kind, make_executor, spin
-from exo_has_runtime.testing.processes import NodeProcess
+from exo_has_runtime.processes import NodeProcess
 
 
 def test_events_executor_still_fails_callbacks_that_take_the_message_info(ros_context):

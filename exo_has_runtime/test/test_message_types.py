@@ -2,8 +2,9 @@ import pytest
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState
 
+from exo_has_common.errors import UnknownMessageTypeError
 from exo_has_msgs.msg import HasState
-from exo_has_runtime.errors import MalformedMessageError, UnknownMessageTypeError
+from exo_has_runtime.errors import MalformedMessageError
 from exo_has_runtime.message_types import deserialize, message_class
 
 

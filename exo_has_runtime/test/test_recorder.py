@@ -13,10 +13,10 @@ from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.interfaces import QosDurability, QosReliability
 from sensor_msgs.msg import JointState
 
+from exo_has_common.bag import BagWriter, bag_topics, offered_qos, read_messages, recover_bag
 from exo_has_msgs.msg import HasCommand, SafetyEvent
-from exo_has_runtime.bag import BagWriter, bag_topics, offered_qos, read_messages, recover_bag
+from exo_has_runtime.processes import NodeProcess
 from exo_has_runtime.recording import subscription_qos
-from exo_has_runtime.testing.processes import NodeProcess
 
 RECORDER = 'exo_has_runtime.recorder'
 REPLAY = 'exo_has_runtime.replay'

@@ -20,7 +20,7 @@ from rosbags.interfaces import (
     QosTime,
 )
 
-from exo_has_runtime.bag import BagWriter, bag_topics, offered_qos
+from exo_has_common.bag import BagWriter, bag_topics, offered_qos
 from exo_has_runtime.errors import ReplayError
 from exo_has_runtime.recording import (
     DEFAULT_REPLAY_DEPTH,

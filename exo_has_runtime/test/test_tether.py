@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from exo_has_runtime.testing.tether import ORPHANED_EXIT
+from exo_has_runtime.tether import ORPHANED_EXIT
 
 pytestmark = pytest.mark.process  # every test here starts processes
 
@@ -25,7 +25,7 @@ time.sleep(60)
 
 PARENT = """
 import os, subprocess, sys, time
-subprocess.Popen([sys.executable, '-m', 'exo_has_runtime.testing.tether', str(os.getpid()),
+subprocess.Popen([sys.executable, '-m', 'exo_has_runtime.tether', str(os.getpid()),
                   'tethered_child', *sys.argv[1:]])
 time.sleep(60)
 """
@@ -55,13 +55,13 @@ def test_a_tethered_child_gets_sigterm_when_its_parent_is_killed(tmp_path):
 
 def test_a_child_whose_parent_is_already_gone_does_not_run(tmp_path):
     result = subprocess.run(
-        [sys.executable, '-m', 'exo_has_runtime.testing.tether', '1', 'this_module_never_runs'],
+        [sys.executable, '-m', 'exo_has_runtime.tether', '1', 'this_module_never_runs'],
         capture_output=True, text=True, timeout=30, check=False)
     assert result.returncode == ORPHANED_EXIT
     assert 'parent 1 ended before this process started' in result.stderr
 
 
 def test_a_malformed_command_line_names_the_usage():
-    result = subprocess.run([sys.executable, '-m', 'exo_has_runtime.testing.tether', 'x'],
+    result = subprocess.run([sys.executable, '-m', 'exo_has_runtime.tether', 'x'],
                             capture_output=True, text=True, timeout=30, check=False)
     assert result.returncode == 1 and 'usage:' in result.stderr

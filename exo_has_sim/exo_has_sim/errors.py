@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from exo_has_common.errors import ExoHasError
 
-class SimError(Exception):
+
+class SimError(ExoHasError):
     """Base of the errors raised by exo_has_sim."""
 
 

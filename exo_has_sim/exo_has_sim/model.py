@@ -49,17 +49,19 @@ lower: the missing volume becomes a vapour pocket, which a later net inflow must
 pressure can rise again (``p_B`` is held at the floor without a pocket). The relief valve passes
 ``G_r (p - p_set)`` above its setting; the ``relief_valve`` effect adds an opening from a crack
 pressure below it. All functions are compiled with numba and take the packed parameter vector of
-:func:`pack`; the analytic Jacobian covers the paper's circuit, a finite-difference one the
-others (the integrator, a W-method, is of second order with either).
+:func:`pack`; the derivative of :func:`rhs` that implicit integrators need is in
+:mod:`exo_has_sim.model_jacobian`.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
-from numba import njit
 
+from exo_has_sim import parameters, valve
+from exo_has_sim.compiled import compiled
 from exo_has_sim.parameters import CIRCUITS, HasParameters
 from exo_has_sim.valve import ValveMode
 
@@ -79,9 +81,6 @@ N_PACKED = 45
 # Circuits (exo_has_sim.parameters.CIRCUITS) as the ints the compiled code branches on.
 PAPER, TWO_CHAMBER, CLOSED, SWITCHED = (CIRCUITS.index(name) for name in
                                         ('paper', 'two_chamber', 'closed', 'switched'))
-#: Scale of each dynamic state's finite-difference step (x, v, p_A, n, s, void, n_dot, p_B):
-#: the step is 1.5e-8 of the larger of the state and its scale.
-_DIFFERENCE_SCALE = np.array([1e-3, 1e-3, 1e5, 1.0, 1e-3, 1e-9, 1.0, 1e5])
 
 ATMOSPHERIC_PRESSURE = 101_325.0  # Pa
 CAVITATION_TIME_CONSTANT = 1.0e-4  # s, relaxation of the pressure onto the cavitation floor
@@ -91,6 +90,8 @@ VOID_THRESHOLD = 1.0e-10
 AIR_POLYTROPIC_EXPONENT = 1.4
 
 # Valve modes (exo_has_sim.valve.ValveMode) as plain ints, which the compiled code returns.
+# numba freezes these constants and the circuits' into the compiled functions, whose cache
+# therefore goes stale with parameters.py and valve.py too (@compiled(parameters, valve)).
 VALVE_FREE, VALVE_ASSIST, VALVE_RELIEF = int(ValveMode.FREE), int(ValveMode.ASSIST), \
     int(ValveMode.RELIEF)
 
@@ -151,7 +152,12 @@ def pack(params: HasParameters, speed_input: bool = False) -> np.ndarray:
     return packed
 
 
-@njit(cache=True)
+def pack_joints(params: Sequence[HasParameters]) -> np.ndarray:
+    """Return one :func:`pack` row per joint, shape (N, N_PACKED)."""
+    return np.stack([pack(p) for p in params])
+
+
+@compiled(parameters, valve)
 def effective_bulk_modulus(p: float, prm: np.ndarray) -> float:
     """Bulk modulus of oil with entrained air at gauge pressure p [Pa] (air effect)."""
     air = prm[I_AIR]
@@ -163,7 +169,7 @@ def effective_bulk_modulus(p: float, prm: np.ndarray) -> float:
     return float(prm[I_E] / (1.0 + air * ratio * (prm[I_E] / (kappa * p_abs) - 1.0)))
 
 
-@njit(cache=True)
+@compiled(parameters, valve)
 def friction_force(v: float, prm: np.ndarray) -> float:
     """Seal friction [N], opposing v: Coulomb plus Stribeck peak, tanh-smoothed."""
     if prm[I_FC] <= 0.0:
@@ -172,7 +178,7 @@ def friction_force(v: float, prm: np.ndarray) -> float:
     return float(level * math.tanh(v / prm[I_VEPS]))
 
 
-@njit(cache=True)
+@compiled(parameters, valve)
 def pump_speed(n: float, prm: np.ndarray) -> float:
     """Speed at which the pump delivers to the cylinder [rad/s] (dead-zone effect)."""
     dz = prm[I_NDZ]
@@ -185,7 +191,7 @@ def pump_speed(n: float, prm: np.ndarray) -> float:
     return 0.0
 
 
-@njit(cache=True)
+@compiled(parameters, valve)
 def relief_flow(p: float, prm: np.ndarray) -> float:
     """Flow through the safety valve to the tank [m^3/s]."""
     flow = prm[I_GREL] * max(p - prm[I_PREL], 0.0)
@@ -194,7 +200,7 @@ def relief_flow(p: float, prm: np.ndarray) -> float:
     return float(flow)
 
 
-@njit(cache=True)
+@compiled(parameters, valve)
 def _smoothstep(z: float) -> tuple[float, float]:
     """Smoothstep of z clipped to [0, 1], and its derivative."""
     if z <= 0.0:
@@ -204,7 +210,7 @@ def _smoothstep(z: float) -> tuple[float, float]:
     return z * z * (3.0 - 2.0 * z), 6.0 * z * (1.0 - z)
 
 
-@njit(cache=True)
+@compiled(parameters, valve)
 def spool_drive(n: float, p: float, s: float, prm: np.ndarray) -> tuple[float, int, float]:
     """Spool position the system pressure drives the compact valve to (paper 2.3.3).
 
@@ -229,13 +235,13 @@ def spool_drive(n: float, p: float, s: float, prm: np.ndarray) -> tuple[float, i
     return by_speed, 0, d_speed / (prm[I_NENG] - prm[I_NREL])
 
 
-@njit(cache=True)
+@compiled(parameters, valve)
 def spool_target(n: float, p: float, s: float, prm: np.ndarray) -> float:
     """Spool position the compact valve moves to (see :func:`spool_drive`)."""
     return float(spool_drive(n, p, s, prm)[0])
 
 
-@njit(cache=True)
+@compiled(parameters, valve)
 def brake_force(v: float, prm: np.ndarray) -> float:
     """Force of a known brake [N], opposing v (:attr:`HasParameters.brake_force`)."""
     if prm[I_FB] <= 0.0:
@@ -243,14 +249,14 @@ def brake_force(v: float, prm: np.ndarray) -> float:
     return float(prm[I_FB] * math.tanh(v / prm[I_VB]))
 
 
-@njit(cache=True)
+@compiled(parameters, valve)
 def charge_pressure(x: float, prm: np.ndarray) -> float:
     """Pressure [Pa] of the charge line, tank or accumulator at cylinder extension x [m]."""
     stroke = prm[I_STROKE]
     return float(prm[I_PCHG] - prm[I_KCHG] * (min(max(x, 0.0), stroke) - 0.5 * stroke))
 
 
-@njit(cache=True)
+@compiled(parameters, valve)
 def circuit_flows(y: np.ndarray, n_pump: float,
                   prm: np.ndarray) -> tuple[float, float, float, float, float, float]:
     """Flows of the circuit at state y and pump speed ``n_pump`` [rad/s] (module docstring).
@@ -305,7 +311,7 @@ def circuit_flows(y: np.ndarray, n_pump: float,
     return pump, leak + cross, relief, free, into_b, s * rise
 
 
-@njit(cache=True)
+@compiled(parameters, valve)
 def motor_rate(command: float, n: float, rise: float, prm: np.ndarray) -> float:
     """Acceleration [rad/s^2] of a first-order speed loop, within the motor's torque limit.
 
@@ -323,7 +329,7 @@ def motor_rate(command: float, n: float, rise: float, prm: np.ndarray) -> float:
     return rate
 
 
-@njit(cache=True)
+@compiled(parameters, valve)
 def rhs(y: np.ndarray, n_cmd: float, f_load: float, prm: np.ndarray,
         dy: np.ndarray) -> None:
     """Write dy/dt of one joint's state into ``dy``.
@@ -413,7 +419,7 @@ def rhs(y: np.ndarray, n_cmd: float, f_load: float, prm: np.ndarray,
     dy[VOL_COMPRESSION] = capacitance * dp
 
 
-@njit(cache=True)
+@compiled(parameters, valve)
 def valve_mode(y: np.ndarray, prm: np.ndarray) -> int:
     """Valve mode of a state: relief when a safety valve passes flow, else assist or free.
 
@@ -471,172 +477,3 @@ def initial_state(params: HasParameters, position: float, load_force: float = 0.
         y[N] = speed
         y[S] = 1.0
     return y
-
-
-@njit(cache=True)
-def _bulk_modulus_slope(p: float, prm: np.ndarray) -> float:
-    """d(effective bulk modulus)/dp [Pa/Pa]."""
-    air = prm[I_AIR]
-    if air <= 0.0 or p + ATMOSPHERIC_PRESSURE <= 1.0e3:
-        return 0.0
-    p_abs = p + ATMOSPHERIC_PRESSURE
-    kappa = AIR_POLYTROPIC_EXPONENT
-    ratio = (ATMOSPHERIC_PRESSURE / p_abs) ** (1.0 / kappa)
-    stiff = prm[I_E] / (kappa * p_abs)
-    denominator = 1.0 + air * ratio * (stiff - 1.0)
-    d_ratio = -ratio / (kappa * p_abs)
-    d_denominator = air * (d_ratio * (stiff - 1.0) - ratio * stiff / p_abs)
-    return float(-prm[I_E] * d_denominator / denominator ** 2)
-
-
-@njit(cache=True)
-def implicit_states(prm: np.ndarray) -> int:
-    """Leading states an implicit integrator must solve for: p_B (the last) only if it moves.
-
-    In the paper's circuit the rod side is the tank's and p_B stays constant, so its row of
-    the Jacobian is zero and the implicit solve can leave it out (exactly).
-    """
-    return N_DYNAMIC - 1 if int(prm[I_CIRCUIT]) == PAPER else N_DYNAMIC
-
-
-@njit(cache=True)
-def analytic(prm: np.ndarray) -> bool:
-    """Whether :func:`jacobian` is analytic for these parameters (the paper's HAS).
-
-    So it is for the paper's circuit with its tank at atmospheric pressure, the motor's
-    own speed loop and no torque limit; other parameter sets take finite differences.
-    """
-    return (int(prm[I_CIRCUIT]) == PAPER and prm[I_PCHG] == 0.0 and prm[I_KCHG] == 0.0
-            and prm[I_JM] <= 0.0 and prm[I_SPEED_IN] <= 0.0)
-
-
-@njit(cache=True)
-def jacobian(y: np.ndarray, n_cmd: float, f_load: float, prm: np.ndarray,
-             jac: np.ndarray) -> None:
-    """Write d(dy/dt)/d(y[:N_DYNAMIC]) of one joint into ``jac`` (N_STATE x N_DYNAMIC).
-
-    The analytic derivative of :func:`rhs` (one-sided at its kinks) where :func:`analytic`,
-    else forward differences; for the implicit integrator, checked against central
-    differences in the tests.
-    """
-    if analytic(prm):
-        _analytic_jacobian(y, prm, jac)
-        return
-    base = np.empty(N_STATE)
-    rhs(y, n_cmd, f_load, prm, base)
-    _difference_jacobian(y, n_cmd, f_load, prm, base, jac)
-
-
-@njit(cache=True)
-def _difference_jacobian(y: np.ndarray, n_cmd: float, f_load: float, prm: np.ndarray,
-                         base: np.ndarray, jac: np.ndarray) -> None:
-    """Forward-difference d(dy/dt)/d(y[:N_DYNAMIC]) around ``base`` = dy/dt at y."""
-    moved = y.copy()
-    out = np.empty(N_STATE)
-    for j in range(N_DYNAMIC):
-        step = 1.5e-8 * max(abs(y[j]), _DIFFERENCE_SCALE[j])
-        moved[j] = y[j] + step
-        rhs(moved, n_cmd, f_load, prm, out)
-        for i in range(N_STATE):
-            jac[i, j] = (out[i] - base[i]) / step
-        moved[j] = y[j]
-
-
-@njit(cache=True)
-def _analytic_jacobian(y: np.ndarray, prm: np.ndarray, jac: np.ndarray) -> None:
-    """Write the analytic Jacobian of the paper's HAS (:func:`analytic`; see :func:`jacobian`)."""
-    x, v, p, n, s = y[X], y[V], y[PA], y[N], y[S]
-    for i in range(N_STATE):
-        for j in range(N_DYNAMIC):
-            jac[i, j] = 0.0
-    stroke = prm[I_STROKE]
-    inside = 0.0 <= x <= stroke
-    volume = prm[I_V0] + prm[I_AA] * min(max(x, 0.0), stroke)
-    modulus = effective_bulk_modulus(p, prm)
-    capacitance = volume / modulus
-    n_pump = pump_speed(n, prm)
-    pump_slope = 1.0 if (prm[I_NDZ] <= 0.0 or abs(n) > prm[I_NDZ]) else 0.0
-    leak_p = prm[I_LN] * p + prm[I_LN2] * p * abs(p)
-    q_pump = s * prm[I_DP] * n_pump
-    q_leak = s * leak_p + prm[I_LC] * p
-    q_relief = relief_flow(p, prm)
-    q_free = (1.0 - s) * prm[I_GFREE] * p
-    q_net = q_pump - q_leak - q_relief - q_free - prm[I_AE] * v
-    relief_slope = prm[I_GREL] if p > prm[I_PREL] else 0.0
-    if prm[I_PCRACK] > 0.0 and prm[I_PCRACK] < p < prm[I_PREL]:
-        relief_slope += prm[I_GCRACK]
-    # d(flow)/d(state) for each flow, over (x, v, p, n, s).
-    d_pump = (0.0, 0.0, 0.0, s * prm[I_DP] * pump_slope, prm[I_DP] * n_pump)
-    d_leak = (0.0, 0.0, s * (prm[I_LN] + 2.0 * prm[I_LN2] * abs(p)) + prm[I_LC], 0.0, leak_p)
-    d_relief = (0.0, 0.0, relief_slope, 0.0, 0.0)
-    d_free = (0.0, 0.0, (1.0 - s) * prm[I_GFREE], 0.0, -prm[I_GFREE] * p)
-    d_cap_x = prm[I_AA] / modulus if inside else 0.0
-    d_cap_p = -volume * _bulk_modulus_slope(p, prm) / modulus ** 2
-    pocket = y[VOID] > VOID_THRESHOLD or (p <= prm[I_PCAV] and q_net < 0.0)
-    dp_pocket = (prm[I_PCAV] - p) / CAVITATION_TIME_CONSTANT
-    for j in range(S + 1):
-        d_net = d_pump[j] - d_leak[j] - d_relief[j] - d_free[j]
-        if j == V:
-            d_net -= prm[I_AE]
-        d_cap = d_cap_x if j == X else (d_cap_p if j == PA else 0.0)
-        if not pocket:
-            jac[PA, j] = d_net / capacitance - q_net * d_cap / capacitance ** 2
-            jac[VOL_COMPRESSION, j] = d_net
-        else:
-            d_dp = -1.0 / CAVITATION_TIME_CONSTANT if j == PA else 0.0
-            d_compression = d_cap * dp_pocket + capacitance * d_dp
-            jac[PA, j] = d_dp
-            jac[VOL_COMPRESSION, j] = d_compression
-            jac[VOID, j] = d_compression - d_net
-        jac[VOL_PUMP, j] = d_pump[j]
-        jac[VOL_LEAK, j] = d_leak[j]
-        jac[VOL_RELIEF, j] = d_relief[j]
-        jac[VOL_FREE, j] = d_free[j]
-    # Force balance.
-    d_force_x = 0.0
-    d_force_v = -prm[I_B]
-    if x < 0.0 and -prm[I_KSTOP] * x - prm[I_CSTOP] * v > 0.0:
-        d_force_x, d_force_v = -prm[I_KSTOP], d_force_v - prm[I_CSTOP]
-    elif x > stroke and -prm[I_KSTOP] * (x - stroke) - prm[I_CSTOP] * v < 0.0:
-        d_force_x, d_force_v = -prm[I_KSTOP], d_force_v - prm[I_CSTOP]
-    if prm[I_FC] > 0.0:
-        peak = prm[I_FS] * math.exp(-(v / prm[I_VS]) ** 2)
-        level = prm[I_FC] + peak
-        t = math.tanh(v / prm[I_VEPS])
-        d_level = peak * (-2.0 * v / prm[I_VS] ** 2)
-        d_force_v -= d_level * t + level * (1.0 - t * t) / prm[I_VEPS]
-    if prm[I_FB] > 0.0:
-        t = math.tanh(v / prm[I_VB])
-        d_force_v -= prm[I_FB] * (1.0 - t * t) / prm[I_VB]
-    jac[X, V] = 1.0
-    jac[V, X] = d_force_x / prm[I_M]
-    jac[V, V] = d_force_v / prm[I_M]
-    jac[V, PA] = prm[I_AA] / prm[I_M]
-    jac[V, PB] = -prm[I_AB] / prm[I_M]
-    zeta = prm[I_ZETA]
-    if zeta > 0.0:
-        omega = 2.0 * zeta / prm[I_TAU_M]
-        jac[N, NDOT] = 1.0
-        jac[NDOT, N] = -omega * omega
-        jac[NDOT, NDOT] = -2.0 * zeta * omega
-    else:
-        jac[N, N] = -1.0 / prm[I_TAU_M]
-        jac[NDOT, NDOT] = -1.0 / prm[I_TAU_M]
-    _, driver, slope = spool_drive(n, p, s, prm)
-    jac[S, S] = -1.0 / prm[I_TAU_S]
-    if driver == 0:
-        jac[S, N] = slope * (1.0 if n >= 0.0 else -1.0) / prm[I_TAU_S]
-    else:
-        jac[S, PA] = slope * s / prm[I_TAU_S]
-        jac[S, S] += slope * p / prm[I_TAU_S]
-
-
-@njit(cache=True)
-def rhs_and_jacobian(y: np.ndarray, n_cmd: float, f_load: float, prm: np.ndarray,
-                     dy: np.ndarray, jac: np.ndarray) -> None:
-    """Evaluate :func:`rhs` and :func:`jacobian` together (the integrator needs both)."""
-    rhs(y, n_cmd, f_load, prm, dy)
-    if analytic(prm):
-        _analytic_jacobian(y, prm, jac)
-    else:
-        _difference_jacobian(y, n_cmd, f_load, prm, dy, jac)

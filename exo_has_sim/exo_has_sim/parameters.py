@@ -16,9 +16,9 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
-from exo_has_runtime.errors import CommandLineError
-from exo_has_runtime.joints import JOINT_TYPES
-from exo_has_runtime.params_yaml import read_yaml_file
+from exo_has_common.errors import CommandLineError
+from exo_has_common.joints import JOINT_TYPES
+from exo_has_common.params_yaml import read_yaml_file
 from exo_has_sim.errors import ParameterError
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / 'config'

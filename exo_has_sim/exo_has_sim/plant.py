@@ -20,7 +20,7 @@ from exo_has_sim.errors import ParameterError, SimulationError
 from exo_has_sim.kinematics import Linkage
 from exo_has_sim.loads import default_load_force
 from exo_has_sim.parameters import HasParameters, load_parameters
-from exo_has_sim.simulate import PlantSimulator
+from exo_has_sim.plant_simulator import PlantSimulator
 
 #: Longest span one call integrates [s]; a longer gap (a stalled process) is integrated in
 #: pieces of this length so that the adaptive solver's step history stays meaningful.

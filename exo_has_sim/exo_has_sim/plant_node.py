@@ -16,26 +16,30 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from std_msgs.msg import Float64
 
-from exo_has_msgs.msg import GaitPhase, HasCommand, HasState
-from exo_has_runtime.execution import run_node
-from exo_has_runtime.joints import JOINT_NAMES, check_joint, joint_type_of
-from exo_has_runtime.realtime import MAX_PRIORITY, set_realtime_priority
-from exo_has_runtime.timing import PeriodMonitor
-from exo_has_runtime.topics import (
+from exo_has_common.joints import JOINT_NAMES, check_joint, joint_type_of
+from exo_has_common.timing import PeriodMonitor
+from exo_has_common.topics import (
     GAIT_PHASE_TOPIC,
     has_command_topic,
     has_state_topic,
     load_force_topic,
 )
+from exo_has_msgs.msg import GaitPhase, HasCommand, HasState
+from exo_has_runtime.execution import run_node
+from exo_has_runtime.node_parameters import (
+    apply_realtime_priority,
+    declare,
+    declare_realtime_priority,
+)
 from exo_has_sim.kinematics import Linkage
 from exo_has_sim.loads import TRACKING_LOAD_MASS, JointLoad, default_load_force
 from exo_has_sim.parameters import load_parameters
 from exo_has_sim.plant import Plant
+from exo_has_sim.state_message import has_state
 
 #: How a plant's external load is set (parameter load_model).
 LOAD_MODELS = ('gait', 'constant')
@@ -48,45 +52,35 @@ class PlantNode(Node):
         # options: Node's keyword arguments (cli_args, context, ...), so that a container
         # can compose this node with others in one process (exo_has_runtime.container).
         super().__init__('has_plant', **options)
-        joint = self.declare_parameter('joint', '', ParameterDescriptor(
-            description=f'joint simulated: one of {", ".join(JOINT_NAMES)}',
-            read_only=True)).value
+        joint = declare(self, 'joint', '', f'joint simulated: one of {", ".join(JOINT_NAMES)}')
         if not joint:
             msg = f'parameter joint is required: one of {", ".join(JOINT_NAMES)}'
             raise ValueError(msg)
         self.joint = check_joint(joint)
-        params_source = self.declare_parameter('params', joint_type_of(joint), ParameterDescriptor(
-            description='HAS parameter set: hip, knee or a parameters YAML file',
-            read_only=True)).value
-        rate = self.declare_parameter('rate', 200.0, ParameterDescriptor(
-            description='state publication and integration rate [Hz]', read_only=True,
-            floating_point_range=[FloatingPointRange(from_value=1.0, to_value=2000.0)])).value
-        initial_angle = self.declare_parameter('initial_angle', 0.0, ParameterDescriptor(
-            description='joint angle at start [rad], flexion positive (0: standing)',
-            read_only=True)).value
-        priority = self.declare_parameter('realtime_priority', 0, ParameterDescriptor(
-            description='SCHED_FIFO priority of the thread that runs the ticks (0: the default '
-                        'scheduler; needs root or CAP_SYS_NICE, see exo_has_runtime.realtime)',
-            read_only=True,
-            integer_range=[IntegerRange(from_value=0, to_value=MAX_PRIORITY, step=1)])).value
+        params_source = declare(self, 'params', joint_type_of(joint),
+                                'HAS parameter set: hip, knee or a parameters YAML file')
+        rate = declare(self, 'rate', 200.0, 'state publication and integration rate [Hz]',
+                       (1.0, 2000.0))
+        initial_angle = declare(self, 'initial_angle', 0.0,
+                                'joint angle at start [rad], flexion positive (0: standing)')
+        priority = declare_realtime_priority(self, 'the thread that runs the ticks')
         params = load_parameters(params_source)
-        load_model = self.declare_parameter('load_model', 'gait', ParameterDescriptor(
-            description="gait: the load follows the gait publisher's gait_phase (the moment "
-                        "per kg of load_mass over the lever arm, at least the wearer's push); "
-                        'constant: load_force throughout', read_only=True)).value
+        load_model = declare(self, 'load_model', 'gait',
+                             "gait: the load follows the gait publisher's gait_phase (the moment "
+                             "per kg of load_mass over the lever arm, at least the wearer's "
+                             "push); constant: load_force throughout")
         if load_model not in LOAD_MODELS:
             msg = f'load_model must be one of {", ".join(LOAD_MODELS)}, got {load_model!r}'
             raise ValueError(msg)
-        mass = self.declare_parameter('load_mass', TRACKING_LOAD_MASS, ParameterDescriptor(
-            description='carried mass [kg] the load is derived for (the paper: 25 kg in its '
-                        'tracking tests, 50 kg in design)', read_only=True,
-            floating_point_range=[FloatingPointRange(from_value=1.0, to_value=500.0)])).value
-        load = self.declare_parameter('load_force', default_load_force(
-            params, mass=mass, standing_angle=initial_angle), ParameterDescriptor(
-            description='constant external rod force [N] (load_model constant), positive '
-                        'pushing the cylinder in; the default is the peak normative extensor '
-                        'moment for load_mass at the standing lever arm (exo_has_sim.loads)',
-            floating_point_range=[FloatingPointRange(from_value=-1.0e5, to_value=1.0e5)])).value
+        mass = declare(self, 'load_mass', TRACKING_LOAD_MASS,
+                       'carried mass [kg] the load is derived for (the paper: 25 kg in its '
+                       'tracking tests, 50 kg in design)', (1.0, 500.0))
+        load = declare(self, 'load_force',
+                       default_load_force(params, mass=mass, standing_angle=initial_angle),
+                       'constant external rod force [N] (load_model constant), positive pushing '
+                       'the cylinder in; the default is the peak normative extensor moment for '
+                       'load_mass at the standing lever arm (exo_has_sim.loads)',
+                       (-1.0e5, 1.0e5), read_only=False)
         self._gait_load: JointLoad | None = None
         if load_model == 'gait':
             self._gait_load = JointLoad(params, mass)
@@ -110,9 +104,7 @@ class PlantNode(Node):
         describe = (f'along the gait for {mass:g} kg (at least {load:.1f} N)'
                     if self._gait_load is not None else f'{load:.1f} N')
         # This thread spins the node; the DDS threads, created earlier, stay ordinary.
-        problem = set_realtime_priority(priority)
-        if problem:
-            self.get_logger().warning(f'realtime_priority: {problem}')
+        apply_realtime_priority(self, priority)
         self.get_logger().info(
             f'{self.joint} plant ready ({self._plant.params.joint_type} parameters from '
             f'{params_source}), {rate:g} Hz, load {describe}')
@@ -162,14 +154,8 @@ class PlantNode(Node):
         elapsed = (now_ns - self._last_ns) * 1e-9
         self._last_ns = now_ns
         sample = self._plant.advance(elapsed)
-        state = HasState(joint=self.joint, position=sample.position, velocity=sample.velocity,
-                         pressure_a=sample.pressure_a, pressure_b=sample.pressure_b,
-                         motor_speed=sample.motor_speed,
-                         motor_speed_command=sample.motor_speed_command,
-                         motor_current=math.nan, load_force=sample.load_force,
-                         valve_mode=sample.valve_mode)
-        state.header.stamp = now.to_msg()
-        self._publisher.publish(state)
+        self._publisher.publish(has_state(self.joint, now_ns, sample,
+                                          load_force=sample.load_force))
 
     def destroy_node(self) -> None:
         """Log the timing summary, then destroy the node."""

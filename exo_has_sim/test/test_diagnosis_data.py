@@ -170,8 +170,8 @@ def test_jittery_stamps_are_resampled_and_a_long_gap_is_refused():
 def test_one_joints_topics_are_read_from_a_bag(tmp_path):
     from rclpy.serialization import serialize_message
 
+    from exo_has_common.bag import BagWriter
     from exo_has_msgs.msg import HasCommand, HasState
-    from exo_has_runtime.bag import BagWriter
 
     samples = 300
     t0 = 1_700_000_000_000_000_000

@@ -12,6 +12,12 @@ from exo_has_sim.diagnosis import has_plant
 from exo_has_sim.diagnosis.compare import Span, make_windows
 from exo_has_sim.diagnosis.data import Limits, check_columns
 from exo_has_sim.diagnosis.diagnose import diagnose
+from exo_has_sim.diagnosis.effects import (
+    EFFECTS,
+    effects_of,
+    has_effect_table,
+    mass_effect_table,
+)
 from exo_has_sim.diagnosis.fitting import evaluate, fit_parameters, output_weights, robust_rms
 from exo_has_sim.diagnosis.has_plant import HasPlant
 from exo_has_sim.diagnosis.mass_plant import MassPlant, _mass_windows
@@ -131,6 +137,34 @@ def test_the_has_baseline_re_estimates_the_nuisances_with_the_stated_priors():
     params, _ = HasPlant(measurement, hip).candidate_parameters(
         {'motor_time_constant': 0.007, 'dead_volume': 9e-6})
     assert (params.motor_time_constant, params.dead_volume) == (0.007, 9e-6)
+
+
+def test_the_library_is_the_one_list_of_each_plant_s_effects_and_their_parameters():
+    # EFFECTS (Effect.plants) says which effects a plant has; the plants and the parameter
+    # tables follow it, each effect's first parameter its size.
+    hip = load_parameters('hip')
+    assert effects_of('has') == ('coulomb_friction', 'braking_load', 'pump_deadzone',
+                                 'transport_delay', 'quadratic_leakage', 'relief_valve',
+                                 'entrained_air')
+    assert effects_of('mass') == ('coulomb_friction', 'pump_deadzone', 'transport_delay')
+    assert set(effects_of('has')) | set(effects_of('mass')) == set(EFFECTS)
+    for kind, table in (('has', has_effect_table(hip)), ('mass', mass_effect_table(100.0))):
+        assert tuple(table) == effects_of(kind), kind
+        for effect, parameters in table.items():
+            assert parameters[0].name == EFFECTS[effect].size, (kind, effect)
+    columns = has_closed_loop(hip, seconds=3.0)
+    measurement = check_columns(columns, 'has', 'own model')
+    assert HasPlant(measurement, hip).effects == effects_of('has')
+    # Not a brake where the set has one (without a load_force, which would take it in), nor a
+    # delay with the measured speed as the input.
+    unloaded = check_columns({k: v for k, v in columns.items() if k != 'load_force'}, 'has',
+                             'own model')
+    braked = HasPlant(unloaded, hip.replace(brake_force=300.0))
+    assert 'braking_load' not in braked.effects
+    assert 'transport_delay' not in HasPlant(measurement, hip, speed_input=True).effects
+    force = random_force(800, 1)
+    mass = MassPlant(mass_measurement(force, simulate_mass(force, 12.0, 80.0)), mass=20.0)
+    assert mass.effects == effects_of('mass')
 
 
 def random_force(samples, seed, level=60.0):

@@ -16,7 +16,8 @@ from exo_has_sim import model
 from exo_has_sim.diagnosis.cli import STRUCTURE_STATUS, main
 from exo_has_sim.diagnosis.compare import horizon_samples, make_windows
 from exo_has_sim.diagnosis.data import check_columns, read_csv
-from exo_has_sim.diagnosis.diagnose import load_plant
+from exo_has_sim.diagnosis.evidence import flow_gains, motor_shortfall, resisting_force
+from exo_has_sim.diagnosis.findings import Alternative, Finding, Judgement
 from exo_has_sim.diagnosis.fitting import (
     Evaluation,
     Fit,
@@ -25,17 +26,9 @@ from exo_has_sim.diagnosis.fitting import (
     output_weights,
 )
 from exo_has_sim.diagnosis.has_plant import HasPlant
+from exo_has_sim.diagnosis.loading import load_plant
 from exo_has_sim.diagnosis.plants import Parameter
-from exo_has_sim.diagnosis.structure import (
-    Alternative,
-    Finding,
-    Judgement,
-    fit_findings,
-    flow_gains,
-    judge,
-    motor_shortfall,
-    resisting_force,
-)
+from exo_has_sim.diagnosis.structure import fit_findings, judge
 from exo_has_sim.diagnosis.transfer import ThirdOrderModel
 from exo_has_sim.parameters import load_parameters
 from exo_has_sim.simulate import simulate_closed_loop

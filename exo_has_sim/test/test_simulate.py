@@ -8,7 +8,7 @@ from exo_has_sim.errors import SimulationError
 from exo_has_sim.gait import load_gait_cycle
 from exo_has_sim.kinematics import Linkage
 from exo_has_sim.parameters import load_parameters
-from exo_has_sim.reference import simulate_reference
+from exo_has_sim.reference_solution import simulate_reference
 from exo_has_sim.simulate import simulate_closed_loop, simulate_open_loop
 
 HIP = load_parameters('hip')
@@ -69,7 +69,7 @@ def test_joints_are_independent_in_a_vectorised_run():
 
 @pytest.mark.parametrize('delay', [0.0, 0.0123])
 def test_stepping_a_plant_matches_the_batch_simulation(delay):
-    from exo_has_sim.simulate import PlantSimulator
+    from exo_has_sim.plant_simulator import PlantSimulator
 
     knee = load_parameters('knee').with_effects(transport_delay=delay)
     hip = HIP.with_effects(transport_delay=delay / 2)

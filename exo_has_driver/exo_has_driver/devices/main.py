@@ -46,11 +46,11 @@ import threading
 from collections.abc import Sequence
 from types import FrameType
 
+from exo_has_common.realtime import MAX_PRIORITY, set_realtime_priority
 from exo_has_driver import can_dictionary as cd
 from exo_has_driver.devices.rig import DEFAULT_LOAD_MASS, Rig
 from exo_has_driver.errors import DriverError, FaultInjectionError
 from exo_has_driver.hardware.bus import open_bus
-from exo_has_runtime.realtime import MAX_PRIORITY, set_realtime_priority
 from exo_has_sim.errors import SimError
 
 _COMMANDS = ('fault', 'heartbeat', 'sensor', 'silence', 'load', 'clear', 'status', 'help')

@@ -30,12 +30,12 @@ from types import TracebackType
 
 import can
 
+from exo_has_common.joints import joint_type_of
 from exo_has_driver import can_dictionary as cd
 from exo_has_driver.devices.drive import Drive
 from exo_has_driver.devices.sensor_board import SensorBoard
 from exo_has_driver.devices.slave import NMT_STATE_NAMES, Slave
 from exo_has_driver.errors import DeviceError, FaultInjectionError
-from exo_has_runtime.joints import joint_type_of
 from exo_has_sim.errors import SimulationError
 from exo_has_sim.loads import default_load_force
 from exo_has_sim.parameters import load_parameters

@@ -8,5 +8,7 @@
 - :mod:`.frames`: the master's CANopen frames, built and read as pure functions;
 - :mod:`.records`: what the master tracks of each slave and joint;
 - :mod:`.startup`: start-up of the slaves over NMT and SDO (identity, PDO configuration);
-- :mod:`.master`: the master (its I/O thread, the SYNC cycle, supervision and the stop latch).
+- :mod:`.receiver`: the slaves' frames, decoded into the records and completed into samples;
+- :mod:`.supervision`: the faults that hold, the stop latch they set, and the reset;
+- :mod:`.master`: the master (its I/O thread and the SYNC cycle).
 """

@@ -1,4 +1,4 @@
-"""The CANopen master of the HAS joints: the I/O thread, the SYNC cycle, supervision, the latch.
+"""The CANopen master of the HAS joints: the I/O thread and the SYNC cycle.
 
 One :class:`Master` serves N joints (a CiA 402 drive and a sensor board each) on one python-can
 bus, as ``config/canopen/README.md`` specifies; it is the one entry point of this package,
@@ -18,33 +18,18 @@ Cycle (the I/O thread, which alone owns the bus and the protocol state): it rece
 the next SYNC is due, then checks the slaves, writes every drive's RPDO1 (controlword from
 :mod:`.cia402`, target velocity from the newest command, clamped to the joint's
 ``motor_speed_max``) and sends the SYNC; the master's heartbeat goes out every producer
-period. TPDOs are decoded (:mod:`.frames`) as they come; once a joint's three TPDOs are in, a
-:class:`~.config.JointSample` is queued, stamped with the receive time of the sensor board's
-TPDO1 (``Message.timestamp``: the kernel's on SocketCAN). A failed receive is a bus fault;
-after :data:`RECEIVE_FAILURES_MAX` in a row the thread ends (:attr:`Master.running` false,
+period. Each frame received goes to the :class:`~.receiver.Receiver`, which decodes it and
+completes the joints' samples. A failed receive is a bus fault; after
+:data:`RECEIVE_FAILURES_MAX` in a row the thread ends (:attr:`Master.running` false,
 :attr:`Master.failure` the error). The caller's thread only swaps a command tuple
 (:meth:`set_command`), appends a request, or pops the queues (:meth:`take_samples`,
 :meth:`take_events`): it never waits on the bus.
 
-Supervision, each a FATAL :class:`~exo_has_driver.Event` that latches the stop:
-a drive in fault or an EMCY, a drive that leaves operation enabled by itself while enabled, a
-statusword of no CiA 402 state (DRIVE_FAULT, value the error code; a sensor board's EMCY is a
-SENSOR_FAULT), a heartbeat older than the consumer time or a slave that reports another NMT
-state than operational or boots (HEARTBEAT_LOST), no TPDO from a slave for ``missing_syncs``
-SYNC periods, a failed send or receive, a bus-off or error-passive bus (BUS_OFF), a sensor
-channel without reading, flagged by the board or out of range (SENSOR_FAULT), an e-stop
-request (E_STOP). One function lists the conditions that hold (:meth:`Master._conditions`):
-supervision latches them, a reset is refused while they hold. A condition is reported once
-while it lasts. While latched every drive is sent quick stop (it brakes on its quick stop ramp
-to switch on disabled) and then disable voltage, target 0, and a slave whose heartbeat reports
-pre-operational or stopped is sent NMT start, so that these RPDOs reach it.
-:meth:`request_reset` works in two phases: refused (a WARN event naming what holds) while a
-condition other than a drive in fault holds; else the drives in fault get one rising edge of
-the fault reset bit while the stop still holds, and once every drive has left fault (within
-:data:`FAULT_RESET_TIME`) the latch is released (a RESET event) and the drives go through the
-enable sequence again, at zero speed until the next command; a drive still in fault then
-refuses the reset (WARN). A slave that booted while running holds until the driver restarts:
-its configuration is lost.
+Supervision (:class:`~.supervision.Supervision`) latches a stop on every fault of the slaves
+and the bus, and releases it on a reset once none holds. While latched every drive is sent
+quick stop (it brakes on its quick stop ramp to switch on disabled) and then disable voltage,
+target 0, and a slave whose heartbeat reports pre-operational or stopped is sent NMT start,
+so that these RPDOs reach it.
 
 The ``canopen`` package (a dependency already: :mod:`.sdo` takes its SDO abort texts, the
 simulated devices its object dictionaries) supplies none of the master's parts:
@@ -72,8 +57,6 @@ import math
 import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import replace
-from functools import partial
 from typing import TypeVar
 
 import can
@@ -85,28 +68,16 @@ from exo_has_driver.errors import (
     CanOpenTimeoutError,
     HardwareConfigError,
 )
-from exo_has_driver.events import Condition, Event, SafetyKind, Severity, StopLatch
+from exo_has_driver.events import Condition, Event, SafetyKind
 from exo_has_driver.hardware import cia402, frames, startup
-from exo_has_driver.hardware.bus import bus_state_fault, error_frame_fault
-from exo_has_driver.hardware.config import JointSample, MasterConfig, infer_valve_mode
-from exo_has_driver.hardware.records import (
-    ALL_TPDOS,
-    DRIVE_TPDO,
-    SENSOR_TPDO1,
-    SENSOR_TPDO2,
-    JointRecord,
-    SlaveRecord,
-)
-from exo_has_driver.hardware.units import decode_sensors
+from exo_has_driver.hardware.bus import bus_state_fault
+from exo_has_driver.hardware.config import JointSample, MasterConfig
+from exo_has_driver.hardware.receiver import Receiver
+from exo_has_driver.hardware.records import JointRecord
+from exo_has_driver.hardware.supervision import Supervision
 
-#: How long a drive has to leave fault after its fault reset edge [s].
-FAULT_RESET_TIME = 0.1
-#: How long an error frame's bus fault counts as holding [s].
-ERROR_FRAME_HOLD = 1.0
 #: Bus state polls: every this many SYNC periods (some interfaces ask the hardware).
 BUS_STATE_EVERY = 10
-#: Samples kept for the caller: a second of four joints at 200 Hz.
-SAMPLE_QUEUE = 800
 #: Failed receives in a row after which the I/O thread gives up (after a failure it waits for
 #: the next SYNC before it tries again: 0.5 s at 200 Hz).
 RECEIVE_FAILURES_MAX = 100
@@ -115,11 +86,7 @@ RECEIVE_FAILURES_MAX = 100
 DRAIN_MAX = 256
 
 _NAN = math.nan
-# Keys of the conditions that are reported again after they stopped holding for a while.
-_CONDITION_KEYS = frozenset({'missing', 'heartbeat', 'sensor', 'bus state', 'send', 'held',
-                             'error frame', 'receive'})
 _T = TypeVar('_T')
-_Key = tuple[object, ...]
 
 
 class Master:
@@ -149,33 +116,16 @@ class Master:
         # (speed [rad/s], enable, receive time [s]) per joint; swapped whole by set_command.
         self._commands: list[tuple[float, bool, float]] = [(0.0, True, now)] * len(self._joints)
         self._requests: collections.deque[tuple[str, str]] = collections.deque()
-        # Conditions the caller finds (a second publisher of a joint's topics): swapped whole.
-        self._held: tuple[Condition, ...] = ()
-        self._samples: collections.deque[JointSample] = collections.deque(maxlen=SAMPLE_QUEUE)
-        self._events: collections.deque[Event] = collections.deque()
-        self._sdo_answers: dict[int, bytes] = {}
-        self._handlers: dict[int, Callable[[can.Message], None]] = {}
-        self._register_handlers()
+        self._supervision = Supervision(config, self._joints, self._zero_commands)
+        self._receiver = Receiver(config, self._joints, self._supervision, clock)
         self._heartbeat = frames.heartbeat(config.master_id)
         self._sync = frames.sync()
         self._heartbeat_due: float | None = None
-        self._latch_state = StopLatch()
-        self._running = False
-        self._operational = False
         self._thread: threading.Thread | None = None
         self._stop_thread = threading.Event()
         self._shutting_down = False
         self._sync_count = 0
-        self._send_failed: str | None = None
-        self._send_failed_sync = -1
-        self._frame_fault: str | None = None
-        self._frame_fault_time = -math.inf
-        self._state_fault: str | None = None
-        self._receive_fault: str | None = None
-        self._receive_fault_time = -math.inf
         self._receive_failures = 0
-        # End of the second phase of a reset: drives sent a fault reset edge must leave fault.
-        self._reset_until: float | None = None
         self.failure: BaseException | None = None
 
     # --- the caller's side -------------------------------------------------------------------
@@ -187,12 +137,12 @@ class Master:
     @property
     def latched(self) -> bool:
         """Whether a stop is latched."""
-        return self._latch_state.latched
+        return self._supervision.latched
 
     @property
     def cause(self) -> Event | None:
         """The event that latched the stop, None when not latched."""
-        return self._latch_state.cause
+        return self._supervision.cause
 
     @property
     def io_thread_id(self) -> int | None:
@@ -246,8 +196,7 @@ class Master:
         event), and a reset is refused while any is held. Their keys are made the master's
         (``('held', key)``), so that they cannot meet its own.
         """
-        self._held = tuple(replace(condition, key=('held', condition.key))
-                           for condition in conditions)
+        self._supervision.hold(conditions)
 
     def request_reset(self) -> None:
         """Ask to release the latched stop at the next SYNC (answered by an event)."""
@@ -255,11 +204,11 @@ class Master:
 
     def take_samples(self) -> list[JointSample]:
         """Return the samples completed since the last call, oldest first."""
-        return _drain(self._samples)
+        return _drain(self._receiver.samples)
 
     def take_events(self) -> list[Event]:
         """Return the events raised since the last call, oldest first."""
-        return _drain(self._events)
+        return _drain(self._supervision.events)
 
     # --- start and close ---------------------------------------------------------------------
     def start(self) -> None:
@@ -293,13 +242,14 @@ class Master:
         self._thread.start()
         deadline = self._clock() + self.config.enable_timeout
         while not self.all_enabled():
-            if self._latch_state.latched or not self.running or self._clock() > deadline:
+            if self._supervision.latched or not self.running or self._clock() > deadline:
                 self.close()
                 if self.failure is not None:
                     msg = f'the CAN master failed while enabling the drives: {self.failure}'
                     raise CanOpenError(msg) from self.failure
-                if self._latch_state.cause is not None:
-                    msg = f'a fault while enabling the drives: {self._latch_state.cause.text}'
+                cause = self._supervision.cause
+                if cause is not None:
+                    msg = f'a fault while enabling the drives: {cause.text}'
                     raise CanOpenError(msg)
                 states = ', '.join(f'{joint.config.name} drive (node {joint.drive.node}) in '
                                    f'{joint.state}' for joint in self._joints
@@ -342,16 +292,18 @@ class Master:
             slave.seen = True
             slave.missing = 0
         for joint in in_fault:
-            self._arm_fault_reset(joint, now)  # in fault from a lost master heartbeat only
-        self._operational = True
+            # In fault from a lost master heartbeat only.
+            self._supervision.arm_fault_reset(joint, now)
+        self._receiver.operational = True
 
     def _exchange(self, node: int, request: bytes | None, timeout: float) -> bytes | None:
         """Send an SDO request and wait for the node's answer (the SdoClient's transport)."""
+        answers = self._receiver.sdo_answers
         if request is not None:
-            self._sdo_answers.pop(node, None)
+            answers.pop(node, None)
             self._send(frames.sdo_request(node, request))
-        self._pump(timeout, lambda: node in self._sdo_answers)
-        return self._sdo_answers.pop(node, None)
+        self._pump(timeout, lambda: node in answers)
+        return answers.pop(node, None)
 
     def _pump(self, timeout: float, done: Callable[[], bool] | None = None) -> None:
         """Receive and handle frames, producing the heartbeat, until done() or the timeout."""
@@ -366,14 +318,14 @@ class Master:
                 wait = min(wait, self._heartbeat_due - now)
             message = self.bus.recv(max(0.0, wait))
             if message is not None:
-                self._on_frame(message)
+                self._receiver.on_frame(message)
             elif wait <= 0.0 and now >= deadline:
                 return
 
     # --- the I/O thread --------------------------------------------------------------------
     def _run(self) -> None:
         period = self.config.period
-        on_frame = self._on_frame
+        on_frame = self._receiver.on_frame
         receive = self._receive
         clock = self._clock
         next_sync = clock()
@@ -400,15 +352,15 @@ class Master:
                     next_sync = now + period  # held up: no burst of SYNCs
         except Exception as exc:  # the loop must not die silently: stop and tell
             self.failure = exc
-            self._latch(('failure',), '', SafetyKind.BUS_OFF, _NAN, _NAN,
-                        f'the CAN master loop failed: {exc!r}')
+            self._supervision.report(('failure',), '', SafetyKind.BUS_OFF, _NAN, _NAN,
+                                     f'the CAN master loop failed: {exc!r}')
             self._send_best_effort_stop()
 
     def _receive(self, timeout: float) -> tuple[can.Message | None, bool]:
         """Receive a frame: (message or None, whether the bus answered).
 
         A failed receive (a bad datagram, a socket error) is a bus fault that holds for
-        :data:`ERROR_FRAME_HOLD`; :data:`RECEIVE_FAILURES_MAX` in a row end the loop.
+        :data:`~.supervision.ERROR_FRAME_HOLD`; :data:`RECEIVE_FAILURES_MAX` in a row end the loop.
 
         Raises
         ------
@@ -420,8 +372,8 @@ class Master:
             message = self.bus.recv(timeout)
         except can.CanError as exc:
             self._receive_failures += 1
-            self._receive_fault = f'receiving from the CAN bus failed: {exc}'
-            self._receive_fault_time = self._clock()
+            self._supervision.receive_failed(f'receiving from the CAN bus failed: {exc}',
+                                             self._clock())
             if self._receive_failures >= RECEIVE_FAILURES_MAX:
                 msg = f'{self._receive_failures} receives in a row failed, the last: {exc}'
                 raise CanBusError(msg) from exc
@@ -433,17 +385,18 @@ class Master:
         while self._requests:
             kind, text = self._requests.popleft()
             if kind == 'stop':
-                self._latch(('e-stop',), '', SafetyKind.E_STOP, _NAN, _NAN,
-                            f'emergency stop: {text}')
+                self._supervision.report(('e-stop',), '', SafetyKind.E_STOP, _NAN, _NAN,
+                                         f'emergency stop: {text}')
             else:
-                self._reset(now)
+                self._supervision.reset(now, self._sync_count)
         self._supervise(now)
-        if self._reset_until is not None:
-            self._finish_reset(now)
+        if self._supervision.resetting:
+            self._supervision.finish_reset(now, self._sync_count)
         units = self._units
         command_timeout = self.config.command_timeout
+        latched = self._supervision.latched
         for index, joint in enumerate(self._joints):
-            if self._latch_state.latched or self._shutting_down:
+            if latched or self._shutting_down:
                 want = cia402.Want.STOPPED
                 speed = 0.0
             else:
@@ -478,15 +431,9 @@ class Master:
             else:
                 slave.missing += 1
         if self._sync_count % BUS_STATE_EVERY == 0:
-            self._state_fault = bus_state_fault(self.bus)
-        conditions = self._conditions(now)
-        for condition in conditions:
-            self._events += self._latch_state.report_once(condition)
-        holding = {condition.key for condition in conditions}
-        self._latch_state.forget({key for key in self._latch_state.reported
-                                  if isinstance(key, tuple) and key[0] in _CONDITION_KEYS
-                                  and key not in holding})
-        if self._latch_state.latched:
+            self._supervision.state_fault = bus_state_fault(self.bus)
+        self._supervision.supervise(now, self._sync_count)
+        if self._supervision.latched:
             self._restart_slaves(now)
 
     def _restart_slaves(self, now: float) -> None:
@@ -502,275 +449,14 @@ class Master:
                 slave.nmt_start_time = now
                 self._send_nmt(cd.NMT_START, slave.node)
 
-    def _conditions(self, now: float) -> list[Condition]:
-        """List the fault conditions that hold now: what supervision latches, what forbids a reset.
-
-        A drive in fault counts once its fault reset time is over. Events that are not states
-        (an EMCY, a drive leaving operation enabled, an e-stop) are latched where they come.
-        """
-        config = self.config
-        conditions: list[Condition] = []
-        for slave in self._slaves:
-            lost = self._heartbeat_fault(slave, now)
-            if lost is not None:
-                age = now - slave.heartbeat_time if slave.heartbeat_time is not None else _NAN
-                conditions.append(Condition(
-                    ('heartbeat', slave.node), slave.joint, SafetyKind.HEARTBEAT_LOST, age,
-                    config.heartbeat_timeout, f'{slave.label}: {lost}'))
-            if slave.missing >= config.missing_syncs:
-                conditions.append(Condition(
-                    ('missing', slave.node), slave.joint, SafetyKind.BUS_OFF, _NAN, _NAN,
-                    f'{slave.label}: no TPDO for {slave.missing} SYNC periods'))
-        for joint in self._joints:
-            name = joint.config.name
-            if cia402.is_fault(joint.state) and now > joint.fault_reset_until:
-                code = joint.emcy_code
-                conditions.append(Condition(
-                    ('drive', name), name, SafetyKind.DRIVE_FAULT,
-                    float(code) if code is not None else _NAN, _NAN,
-                    f'{joint.drive.label} in {joint.state} ({frames.fault_text(code)})'))
-            if joint.fault is not None:
-                conditions.append(Condition(
-                    ('sensor', name), name, SafetyKind.SENSOR_FAULT, joint.fault.value,
-                    joint.fault.limit, f'{joint.sensor.label}: {joint.fault.text}'))
-        bus_checks: tuple[tuple[str, str | None], ...] = (
-            ('bus state', self._state_fault), ('send', self._send_fault()),
-            ('error frame', self._error_frame_fault(now)),
-            ('receive', self._receive_fault_now(now)))
-        for key, text in bus_checks:
-            if text is not None:
-                conditions.append(Condition((key,), '', SafetyKind.BUS_OFF, _NAN, _NAN, text))
-        conditions.extend(self._held)
-        return conditions
-
-    def _heartbeat_fault(self, slave: SlaveRecord, now: float) -> str | None:
-        if slave.rebooted:
-            return ('booted (boot-up message) while running: its configuration is lost, '
-                    'restart the driver')
-        if slave.heartbeat_state != cd.NMT_OPERATIONAL:
-            return f'reports NMT state {frames.nmt_name(slave.heartbeat_state)}, not operational'
-        if slave.heartbeat_time is None or now - slave.heartbeat_time > \
-                self.config.heartbeat_timeout:
-            age = now - slave.heartbeat_time if slave.heartbeat_time is not None else _NAN
-            return (f'heartbeat lost: none for {age:.3f} s (consumer time '
-                    f'{self.config.heartbeat_timeout:.3f} s)')
-        return None
-
-    def _send_fault(self) -> str | None:
-        if self._send_failed is not None and self._send_failed_sync >= self._sync_count - 1:
-            return self._send_failed
-        return None
-
-    def _error_frame_fault(self, now: float) -> str | None:
-        if self._frame_fault is not None and now - self._frame_fault_time <= ERROR_FRAME_HOLD:
-            return self._frame_fault
-        return None
-
-    def _receive_fault_now(self, now: float) -> str | None:
-        if self._receive_fault is not None \
-                and now - self._receive_fault_time <= ERROR_FRAME_HOLD:
-            return self._receive_fault
-        return None
-
-    def _reset(self, now: float) -> None:
-        """First phase of a reset: refuse it, or send the drives in fault a reset edge."""
-        if not self._latch_state.latched:
-            self._events.append(self._latch_state.release())  # says none was latched
-            return
-        if self._reset_until is not None:
-            return  # the reset asked for before is under way
-        if self._refuse_reset(self._conditions(now)):
-            return
-        # Drives in fault get their reset edge while the stop still holds; the latch is
-        # released only once every one of them has left fault (_finish_reset).
-        armed = [joint for joint in self._joints if cia402.is_fault(joint.state)]
-        for joint in armed:
-            self._arm_fault_reset(joint, now)
-        self._reset_until = max((joint.fault_reset_until for joint in armed), default=now)
-        self._finish_reset(now)
-
-    def _finish_reset(self, now: float) -> None:
-        """Second phase of a reset: release once no drive is in fault, refuse at the time."""
-        if self._refuse_reset(self._conditions(now)):
-            self._reset_until = None
-            return
-        in_fault = [joint for joint in self._joints if cia402.is_fault(joint.state)]
-        if in_fault:
-            if self._reset_until is not None and now <= self._reset_until:
-                return
-            self._reset_until = None
-            joint = in_fault[0]
-            code = joint.emcy_code
-            texts = '; '.join(f'{j.drive.label} still in {j.state} after its fault reset '
-                              f'({frames.fault_text(j.emcy_code)})' for j in in_fault)
-            self._events.append(Event(joint.config.name, SafetyKind.DRIVE_FAULT,
-                                      Severity.WARN,
-                                      float(code) if code is not None else _NAN, _NAN, True,
-                                      f'reset refused: {texts}'))
-            return
-        self._reset_until = None
-        for index in range(len(self._joints)):
-            self._commands[index] = (0.0, True, now)
-        self._events.append(self._latch_state.release())
-
-    def _refuse_reset(self, conditions: list[Condition]) -> bool:
-        """WARN and return True if a condition other than a drive in fault holds."""
-        refusal = self._latch_state.refusal(
-            [condition for condition in conditions if condition.kind != SafetyKind.DRIVE_FAULT])
-        if refusal is None:
-            return False
-        self._events.append(refusal)
-        return True
-
-    def _arm_fault_reset(self, joint: JointRecord, now: float) -> None:
-        """Allow one fault reset edge and give the drive time to leave fault."""
-        joint.fault_reset = True
-        joint.fault_reset_until = now + FAULT_RESET_TIME + 2 * self.config.period
-
-    def _latch(self, key: _Key, joint: str, kind: SafetyKind,
-               value: float, limit: float, text: str) -> None:
-        """Raise a FATAL event for a condition not yet reported, and latch the stop."""
-        self._events += self._latch_state.report_once(
-            Condition(key, joint, kind, value, limit, text))
-
-    # --- frames in -----------------------------------------------------------------------------
-    def _register_handlers(self) -> None:
-        handlers = self._handlers
-        for joint in self._joints:
-            drive, sensor = joint.drive.node, joint.sensor.node
-            handlers[cd.TPDO1_BASE + drive] = partial(self._on_drive_tpdo, joint)
-            handlers[cd.TPDO1_BASE + sensor] = partial(self._on_sensor_tpdo1, joint)
-            handlers[cd.TPDO2_BASE + sensor] = partial(self._on_sensor_tpdo2, joint)
-            handlers[cd.EMCY_BASE + drive] = partial(self._on_emcy, joint, True)
-            handlers[cd.EMCY_BASE + sensor] = partial(self._on_emcy, joint, False)
-        for slave in self._slaves:
-            handlers[cd.HEARTBEAT_BASE + slave.node] = partial(self._on_heartbeat, slave)
-            handlers[cd.SDO_TX_BASE + slave.node] = partial(self._on_sdo, slave.node)
-
-    def _on_frame(self, message: can.Message) -> None:
-        if message.is_error_frame:
-            fault = error_frame_fault(message)
-            if fault is not None:
-                self._frame_fault = fault
-                self._frame_fault_time = self._clock()
-            return
-        handler = self._handlers.get(message.arbitration_id)
-        if handler is not None and not message.is_remote_frame:
-            handler(message)
-
-    def _on_heartbeat(self, slave: SlaveRecord, message: can.Message) -> None:
-        state = frames.heartbeat_state(message.data)
-        if state is None:
-            return
-        slave.heartbeat_state = state
-        slave.heartbeat_time = self._clock()
-        if state == cd.NMT_BOOT_UP:
-            slave.booted = True
-            if self._operational:
-                slave.rebooted = True
-                self._latch(('heartbeat', slave.node), slave.joint, SafetyKind.HEARTBEAT_LOST,
-                            0.0, self.config.heartbeat_timeout,
-                            f'{slave.label}: booted (boot-up message) while running: its '
-                            f'configuration is lost, restart the driver')
-
-    def _on_sdo(self, node: int, message: can.Message) -> None:
-        self._sdo_answers[node] = bytes(message.data)
-
-    def _on_emcy(self, joint: JointRecord, is_drive: bool, message: can.Message) -> None:
-        if not self._operational:
-            return
-        emcy = frames.emcy(message.data)
-        if emcy is None:
-            return  # too short, or code 0: a fault was cleared
-        code, register = emcy
-        name = cd.ERROR_CODES.get(code, 'unknown error')
-        if is_drive:
-            joint.emcy_code = code
-            self._latch(('drive', joint.config.name), joint.config.name,
-                        SafetyKind.DRIVE_FAULT, float(code), _NAN,
-                        f'{joint.drive.label}: EMCY 0x{code:04X} {name} (error register '
-                        f'0x{register:02X})')
-        else:
-            self._latch(('emcy', joint.sensor.node), joint.config.name,
-                        SafetyKind.SENSOR_FAULT, float(code), _NAN,
-                        f'{joint.sensor.label}: EMCY 0x{code:04X} {name} (error register '
-                        f'0x{register:02X})')
-
-    def _on_drive_tpdo(self, joint: JointRecord, message: can.Message) -> None:
-        values = frames.drive_tpdo1(message.data)
-        if values is None:
-            return
-        status, joint.velocity, joint.current = values
-        before = joint.state
-        state = joint.state = cia402.decode_state(status)
-        joint.drive.seen = True
-        name = joint.config.name
-        if cia402.is_fault(before) and not cia402.is_fault(state):
-            joint.emcy_code = None  # the next fault's code is unknown until its EMCY
-        if state == cia402.UNKNOWN:
-            self._latch(('drive', name), name, SafetyKind.DRIVE_FAULT, _NAN, _NAN,
-                        f'{joint.drive.label}: statusword 0x{status:04X} matches no CiA 402 '
-                        f'state')
-        elif before == cia402.OPERATION_ENABLED and state != before \
-                and not cia402.is_fault(state) \
-                and joint.enabled_syncs > self.config.missing_syncs:
-            # Sent enable operation for longer than a TPDO may lag: the drive left by itself
-            # (a fault is reported with its code by the supervision).
-            self._latch(('drive', name), name, SafetyKind.DRIVE_FAULT, _NAN, _NAN,
-                        f'{joint.drive.label} left operation enabled for {state} by itself')
-        self._received(joint, DRIVE_TPDO)
-
-    def _on_sensor_tpdo1(self, joint: JointRecord, message: can.Message) -> None:
-        values = frames.sensor_tpdo1(message.data)
-        if values is None:
-            return
-        joint.position, joint.pressure_a, joint.pressure_b = values
-        joint.stamp = message.timestamp
-        joint.sensor.seen = True
-        self._received(joint, SENSOR_TPDO1)
-
-    def _on_sensor_tpdo2(self, joint: JointRecord, message: can.Message) -> None:
-        values = frames.sensor_tpdo2(message.data)
-        if values is None:
-            return
-        joint.velocity_sensor, joint.status, joint.counter = values
-        joint.sensor.seen = True
-        self._received(joint, SENSOR_TPDO2)
-
-    def _received(self, joint: JointRecord, which: int) -> None:
-        """Note a TPDO; once a joint's three are in, queue its sample."""
-        joint.received |= which
-        if joint.received != ALL_TPDOS:
-            return
-        joint.received = 0
-        config = joint.config
-        values = decode_sensors(joint.position, joint.pressure_a, joint.pressure_b,
-                                joint.velocity_sensor, joint.status, config.stroke)
-        fault = values.fault
-        joint.fault = fault
-        key = ('sensor', config.name)
-        if fault is not None:
-            self._latch(key, config.name, SafetyKind.SENSOR_FAULT, fault.value, fault.limit,
-                        f'{joint.sensor.label}: {fault.text}')
-        else:
-            self._latch_state.forget({key})
-        units = self._units
-        speed = units.velocity_from_drive(joint.velocity)
-        self._samples.append(JointSample(
-            config.name, joint.stamp, values.position, values.velocity, values.pressure_a,
-            values.pressure_b, speed, units.velocity_from_drive(joint.target),
-            units.current_from_drive(joint.current),
-            infer_valve_mode(config, joint.state, speed, values.pressure_a, values.pressure_b),
-            joint.state, fault is not None, joint.counter))
-
     # --- frames out ----------------------------------------------------------------------------
     def _send(self, message: can.Message) -> bool:
         try:
             self.bus.send(message, timeout=self.config.period / 2)
         except can.CanError as exc:
-            self._send_failed = (f'sending CAN frame 0x{message.arbitration_id:03X} failed: '
-                                 f'{exc}')
-            self._send_failed_sync = self._sync_count
+            self._supervision.send_failed(
+                f'sending CAN frame 0x{message.arbitration_id:03X} failed: {exc}',
+                self._sync_count)
             return False
         return True
 
@@ -792,6 +478,11 @@ class Master:
             frames.pack_rpdo1(joint.rpdo, cd.CW_QUICK_STOP, 0)
             self._send(joint.rpdo)
         self._send(self._sync)
+
+    def _zero_commands(self, now: float) -> None:
+        """Hold every joint at zero speed, enabled, until its next command (after a reset)."""
+        for index in range(len(self._joints)):
+            self._commands[index] = (0.0, True, now)
 
     def _index(self, joint: str) -> int:
         index = self._indices.get(joint)

@@ -12,11 +12,11 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from exo_has_runtime.errors import RuntimeSeamError
+from exo_has_common.errors import ExoHasError
 from exo_has_sim.diagnosis.compare import DEFAULT_HORIZON
-from exo_has_sim.diagnosis.diagnose import DEFAULT_BURN_IN, diagnose, load_plant
+from exo_has_sim.diagnosis.diagnose import DEFAULT_BURN_IN, diagnose
+from exo_has_sim.diagnosis.loading import load_plant
 from exo_has_sim.diagnosis.report import summary, write_json, write_report
-from exo_has_sim.errors import SimError
 
 EPILOG = """CSV: a header row, one row per sample, SI units: time [s], motor_speed_command
 [rad/s] (--plant has) or force [N] (--plant mass), position [m]; optionally reference [m],
@@ -82,7 +82,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f'wrote {args.json}')
         if args.report:
             print(f'wrote {write_report(result, args.report)}')
-    except (SimError, RuntimeSeamError, OSError) as exc:
+    except (ExoHasError, OSError) as exc:
         print(f'exo-has diagnose: {exc}', file=sys.stderr)
         return 1
     return 0 if result.described else STRUCTURE_STATUS

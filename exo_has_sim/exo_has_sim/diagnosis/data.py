@@ -375,12 +375,12 @@ def read_bag(path: str | Path, joint: str, limits: Limits = Limits()) -> Measure
     MeasurementError
         For an unknown joint, a bag without the joint's states, and what
         :func:`check_columns` refuses.
-    exo_has_runtime.errors.BagError
+    exo_has_common.errors.BagError
         For a missing, unfinished or corrupt bag (naming the command that recovers it).
 
     """
-    from exo_has_runtime.bag import default_typestore, read_messages
-    from exo_has_runtime.topics import JOINT_REFERENCE_TOPIC, has_command_topic, has_state_topic
+    from exo_has_common.bag import default_typestore, read_messages
+    from exo_has_common.topics import JOINT_REFERENCE_TOPIC, has_command_topic, has_state_topic
 
     try:
         state_topic = '/' + has_state_topic(joint)
@@ -432,7 +432,7 @@ def read_bag(path: str | Path, joint: str, limits: Limits = Limits()) -> Measure
     else:
         columns['motor_speed_command'] = command_in_state
     if references:
-        from exo_has_runtime.joints import joint_type_of
+        from exo_has_common.joints import joint_type_of
         from exo_has_sim.kinematics import Linkage
         from exo_has_sim.parameters import load_parameters
 

@@ -65,7 +65,8 @@ class Effect:
     unit : str
         SI unit of the size.
     plants : tuple[str, ...]
-        Plants it applies to.
+        Kinds of plant it applies to (``'has'``, ``'mass'``): the one statement of which
+        effects a plant has (:func:`effects_of`).
     grows_with_size : bool
         Whether a larger size is a stronger effect (not so for a crack pressure).
     through_pressure : bool
@@ -73,7 +74,8 @@ class Effect:
         (friction) that the pressure balances, or a flow law of the pressure (a leakage, a
         valve, the oil's stiffness). Without a pressure or a load-force signal an unmeasured
         load that varies can make any pressure, so such an effect is not identifiable from
-        the command and the position alone (:attr:`HasPlant.unidentifiable`).
+        the command and the position alone
+        (:attr:`~exo_has_sim.diagnosis.has_plant.HasPlant.unidentifiable`).
 
     """
 
@@ -129,6 +131,20 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in (
 )}
 
 
+def effects_of(kind: str) -> tuple[str, ...]:
+    """Return the ids of the effects that apply to a kind of plant, in :data:`EFFECTS`'s order.
+
+    The plants take their effects from here, and their parameter tables
+    (:func:`has_effect_table`, :func:`mass_effect_table`) have a row for each, in this order.
+    """
+    return tuple(effect.id for effect in EFFECTS.values() if kind in effect.plants)
+
+
+def effect_title(effect: str) -> str:
+    """Human name of an effect id (or the id itself)."""
+    return EFFECTS[effect].title if effect in EFFECTS else effect
+
+
 def _geometric(low: float, high: float, count: int = 6) -> tuple[float, ...]:
     return tuple(float(v) for v in np.geomspace(low, high, count))
 
@@ -151,21 +167,16 @@ class RecordRange:
     force: float | None = None
 
 
-def has_effect_parameters(effect: str, params: HasParameters,
-                          record: RecordRange = RecordRange()) -> tuple[Parameter, ...]:
-    """Parameters of an effect in the HAS model (the size first), with search bounds.
+def has_effect_table(params: HasParameters,
+                     record: RecordRange = RecordRange()) -> dict[str, tuple[Parameter, ...]]:
+    """Parameters of each HAS effect (the size first), with search bounds, by effect id.
 
-    The size's grid spans what a fault of a small EHA plausibly is and what the record can
-    show (screening only; the fit searches the wider bounds): a crack pressure from a tenth
-    of the pressure the record reaches to just below it (the setting's 30-90 % without a
-    pressure signal), a friction up to what a seal can give (:func:`seal_friction_limit`)
-    and a braking load from there up to the force the record's pressures push with.
-
-    Raises
-    ------
-    DiagnosisError
-        For an unknown effect.
-
+    A row for each of ``effects_of('has')``, in its order. The size's grid spans what a fault
+    of a small EHA plausibly is and what the record can show (screening only; the fit
+    searches the wider bounds): a crack pressure from a tenth of the pressure the record
+    reaches to just below it (the setting's 30-90 % without a pressure signal), a friction
+    up to what a seal can give (:func:`seal_friction_limit`) and a braking load from there
+    up to the force the record's pressures push with.
     """
     relief = params.relief_pressure
     thrust = params.peak_thrust
@@ -176,7 +187,7 @@ def has_effect_parameters(effect: str, params: HasParameters,
     cracks = np.linspace(0.3, 0.9, 7) * relief if record.pressure is None \
         else np.linspace(0.1, 0.95, 7) * reached
     pushed = max(thrust if record.force is None else record.force, 2.0 * seal)
-    table = {
+    return {
         'coulomb_friction': (Parameter('coulomb_friction', 'N', min(0.02 * thrust, 0.5 * seal),
                                        0.5, seal, 'seal Coulomb friction F_c',
                                        grid=_geometric(0.005 * thrust,
@@ -206,14 +217,44 @@ def has_effect_parameters(effect: str, params: HasParameters,
                                     'free-air volume fraction at atmospheric pressure',
                                     grid=_geometric(0.003, 0.3, 7)),),
     }
+
+
+def has_effect_parameters(effect: str, params: HasParameters,
+                          record: RecordRange = RecordRange()) -> tuple[Parameter, ...]:
+    """Parameters of an effect in the HAS model (the size first) (:func:`has_effect_table`).
+
+    Raises
+    ------
+    DiagnosisError
+        For an unknown effect.
+
+    """
+    table = has_effect_table(params, record)
     if effect not in table:
         msg = f'no effect {effect!r} for the HAS; known: {", ".join(table)}'
         raise DiagnosisError(msg)
     return table[effect]
 
 
+def mass_effect_table(force_max: float) -> dict[str, tuple[Parameter, ...]]:
+    """Parameters of each mass-plant effect, bounds scaled by the largest force [N], by id.
+
+    A row for each of ``effects_of('mass')``, in its order.
+    """
+    top = max(force_max, 1e-6)
+    return {
+        'coulomb_friction': (Parameter('coulomb_friction', 'N', 0.05 * top, 1e-4 * top, top,
+                                       'Coulomb friction F_c',
+                                       grid=_geometric(0.005 * top, 0.3 * top)),),
+        'pump_deadzone': (Parameter('pump_deadzone', 'N', 0.05 * top, 1e-4 * top, top,
+                                    'force dead zone', grid=_geometric(0.005 * top, 0.3 * top)),),
+        'transport_delay': (Parameter('transport_delay', 's', 0.005, 1e-5, 0.1,
+                                      'delay of the force', grid=_geometric(0.001, 0.04)),),
+    }
+
+
 def mass_effect_parameters(effect: str, force_max: float) -> tuple[Parameter, ...]:
-    """Parameters of an effect in the mass plant, bounds scaled by the largest force [N].
+    """Parameters of an effect in the mass plant (:func:`mass_effect_table`).
 
     Raises
     ------
@@ -221,16 +262,7 @@ def mass_effect_parameters(effect: str, force_max: float) -> tuple[Parameter, ..
         For an effect the mass plant does not have.
 
     """
-    top = max(force_max, 1e-6)
-    table = {
-        'coulomb_friction': (Parameter('coulomb_friction', 'N', 0.05 * top, 1e-4 * top, top,
-                                       'Coulomb friction F_c',
-                                       grid=_geometric(0.005 * top, 0.3 * top)),),
-        'transport_delay': (Parameter('transport_delay', 's', 0.005, 1e-5, 0.1,
-                                      'delay of the force', grid=_geometric(0.001, 0.04)),),
-        'pump_deadzone': (Parameter('pump_deadzone', 'N', 0.05 * top, 1e-4 * top, top,
-                                    'force dead zone', grid=_geometric(0.005 * top, 0.3 * top)),),
-    }
+    table = mass_effect_table(force_max)
     if effect not in table:
         msg = f'no effect {effect!r} for the mass plant; known: {", ".join(table)}'
         raise DiagnosisError(msg)

@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from exo_has_sim.diagnosis.compare import Span, effective_samples, fit_percent
-from exo_has_sim.diagnosis.plants import Parameter, Plant
+from exo_has_sim.diagnosis.plants import Parameter, WindowedModel
 from exo_has_sim.errors import DiagnosisError, FitError, SimulationError
 
 FloatArray = NDArray[np.float64]
@@ -154,7 +154,7 @@ def robust_rms(residuals: FloatArray) -> float:
     return float(1.4826 * np.median(np.abs(r - np.median(r)))) if r.size else math.nan
 
 
-def output_weights(plant: Plant) -> FloatArray:
+def output_weights(plant: WindowedModel) -> FloatArray:
     """1 / standard deviation over the record of each output of a plant."""
     spread = [float(np.std(plant.measurement.signal(name))) for name in plant.outputs]
     for name, value in zip(plant.outputs, spread, strict=True):
@@ -166,7 +166,7 @@ def output_weights(plant: Plant) -> FloatArray:
     return 1.0 / np.asarray(spread)
 
 
-def evaluate(plant: Plant, candidates: Sequence[Mapping[str, float]], span: Span,
+def evaluate(plant: WindowedModel, candidates: Sequence[Mapping[str, float]], span: Span,
              weights: FloatArray,
              linearised_at: Mapping[str, float] | None = None) -> list[Evaluation]:
     """Simulate candidates over windows (one plant call) and pair them with the data.
@@ -174,7 +174,7 @@ def evaluate(plant: Plant, candidates: Sequence[Mapping[str, float]], span: Span
     A candidate whose simulation diverges gets infinite predictions (an infinite cost).
     ``linearised_at``: the candidates, near this one (a Jacobian's steps), are predicted
     linearised at it where the plant projects part of its prediction out of the data
-    (:meth:`Plant.predict`).
+    (:meth:`WindowedModel.predict`).
     """
     measured = plant.measured(span)
     try:
@@ -188,7 +188,7 @@ def evaluate(plant: Plant, candidates: Sequence[Mapping[str, float]], span: Span
     return [Evaluation(p, measured, weights) for p in predicted]
 
 
-def fit_parameters(plant: Plant, free: Sequence[Parameter], fixed: Mapping[str, float],
+def fit_parameters(plant: WindowedModel, free: Sequence[Parameter], fixed: Mapping[str, float],
                    span: Span, weights: FloatArray,
                    initial: Mapping[str, float] | None = None, max_iterations: int = 12,
                    tolerance: float = 3e-3) -> Fit:
@@ -196,7 +196,7 @@ def fit_parameters(plant: Plant, free: Sequence[Parameter], fixed: Mapping[str, 
 
     Parameters
     ----------
-    plant : Plant
+    plant : WindowedModel
         The model.
     free : Sequence[Parameter]
         Parameters to fit.
@@ -279,7 +279,7 @@ def fit_parameters(plant: Plant, free: Sequence[Parameter], fixed: Mapping[str, 
             steps.append(step)
         points = [z + np.eye(len(z))[i] * steps[i] for i in range(len(z))]
         if plant.linearises:
-            # Points so near are predicted linearised at their base (Plant.predict), and
+            # Points so near are predicted linearised at their base (WindowedModel.predict), and
             # differenced from the base predicted so too.
             base, *rows = residual_batch([z, *points], around=z)
         else:

@@ -7,7 +7,7 @@ the commands sent before the window, through the model's own speed loop and valv
 load-force signal the load is one constant, fitted with the baseline, or, with the pressure
 unmeasured too, a polynomial in time of each window's own (:meth:`HasPlant.predict`).
 
-The model is integrated by the compiled integrator of :mod:`exo_has_sim.simulate` (that of
+The model is integrated by the compiled integrator of :mod:`exo_has_sim.integrator` (that of
 ``simulate_open_loop``, at tighter tolerances, see :data:`HAS_ATOL`), every (candidate,
 window) pair one of its "joints".
 """
@@ -20,27 +20,32 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
-from numpy.polynomial import Legendre
-from scipy.linalg import expm
-from scipy.signal import lfilter
 
 from exo_has_sim import model, simulate
 from exo_has_sim.diagnosis.compare import Span
 from exo_has_sim.diagnosis.data import Measurement
 from exo_has_sim.diagnosis.effects import (
     EFFECTS,
-    RELIEF_CRACK_CONDUCTANCE,
     RecordRange,
+    effects_of,
     has_effect_parameters,
 )
+from exo_has_sim.diagnosis.has_baseline import (
+    SECOND_ORDER_GRID,
+    baseline_parameters,
+    candidate_parameters,
+    damping_ratio_parameter,
+)
+from exo_has_sim.diagnosis.has_drive import drive_histories
 from exo_has_sim.diagnosis.plants import (
     Candidate,
     FloatArray,
     IntArray,
     Parameter,
-    Plant,
+    WindowedModel,
     smooth,
 )
+from exo_has_sim.diagnosis.window_loads import load_shapes, moved, window_gains
 from exo_has_sim.errors import DiagnosisError
 from exo_has_sim.parameters import Effects, HasParameters
 
@@ -49,31 +54,13 @@ GRAVITY = 9.81  # m/s^2
 HAS_RTOL = 1e-3
 #: Absolute tolerances of (x [m], v [m/s], p_A [Pa], n [rad/s], spool [-], void [m^3], n_dot
 #: [rad/s^2], p_B [Pa]), ten
-#: times tighter than :mod:`exo_has_sim.simulate`'s defaults, which suit a plant node but not a
+#: times tighter than :mod:`exo_has_sim.integrator`'s defaults, which suit a plant node but not a
 #: comparison with data at a sensor's resolution: where the motor speed passes zero, the spool
 #: dips towards free mode and ``(1 - s) G_free p`` drains the chamber at a rate that a spool
 #: error of 1e-3 changes by 60 MPa/s; at the default tolerances the simulated pressure there
 #: was off by up to 0.8 MPa and the position by 0.1 mm (against a tight-tolerance run), at
 #: these 60 kPa and 13 um, the level of the sensors' noise, for 1.6 times the steps.
 HAS_ATOL = np.array([1e-7, 1e-5, 1e3, 1e-3, 1e-5, 1e-10, 10.0, 1e3])
-#: What a candidate may set of :class:`exo_has_sim.parameters.HasParameters`: the HAS
-#: baseline's re-estimated parameters and the damping ratio of its second-order motor loop.
-NUISANCE = ('bulk_modulus', 'pump_leakage', 'damping', 'motor_time_constant',
-            'pump_displacement', 'dead_volume', 'motor_damping_ratio', 'charge_pressure',
-            'charge_stiffness', 'return_conductance', 'brake_force')
-#: Relative standard uncertainty of a nuisance parameter whose parameter set states none
-#: (None: no prior). The motor's speed loop and the dead volume are assumed values in the
-#: project's sets (their provenance says so); the displacement is stated (paper 2.3.1: 0.4
-#: mL/r), the volumetric efficiency that scales it into the flow gain is not. Bulk modulus,
-#: leakage and damping are what the paper (4.2) calls hard to know: the data decide.
-DEFAULT_UNCERTAINTY: dict[str, float | None] = {
-    'bulk_modulus': None, 'pump_leakage': None, 'damping': None,
-    'motor_time_constant': 0.3, 'pump_displacement': 0.15, 'dead_volume': 0.3,
-    'return_conductance': None, 'brake_force': None, 'charge_stiffness': None}
-#: Unit of the linear search of a charge pressure [Pa] (a charge may be 0 gauge).
-CHARGE_SCALE = 1e5
-#: Damping ratios a second-order motor loop is screened at: under- to overdamped.
-SECOND_ORDER_GRID = (0.4, 0.7, 1.0, 1.5)
 #: Motor speed and spool histories kept (one per delay and time constant a fit tried).
 DRIVE_CACHE = 32
 #: Load step [share of the peak thrust] of the simulations that give a window's sensitivity
@@ -91,24 +78,11 @@ LINEARISATIONS_KEPT = 4
 MAX_JOINTS = 2048
 
 
-def model_air_fraction(fraction: float) -> float:
-    """Convert a free-air volume fraction at atmospheric pressure to the model's parameter.
-
-    :func:`exo_has_sim.model.effective_bulk_modulus` takes the air's share of the mixture at
-    pressure p as ``a (p_atm / p_abs)^(1/1.4)``, exact for little air. A fraction alpha of the
-    volume at atmospheric pressure is ``alpha / (1 - alpha)`` of the oil's volume, and the air's
-    share at pressure p is ``alpha r / (1 - alpha + alpha r)`` with r that power ratio (at most
-    0.18 above 1 MPa), so ``a = alpha / (1 - alpha)`` to first order in ``alpha r``: without it
-    the model's parameter would read 25 % high at alpha = 0.2.
-    """
-    return fraction / (1.0 - fraction)
-
-
 def _delayed_indices(starts: IntArray, horizon: int, lag: int) -> IntArray:
     return np.asarray(starts[None, :] - lag + np.arange(horizon)[:, None], dtype=np.int64)
 
 
-class HasPlant(Plant):
+class HasPlant(WindowedModel):
     """The project's HAS model (issue 3) with nominal parameters, over windows.
 
     The baseline re-estimates what section 4.2 of the paper calls hard to know: the bulk
@@ -252,72 +226,11 @@ class HasPlant(Plant):
     def baseline(self) -> tuple[Parameter, ...]:
         """E_y, L_n, B, motor lag, flow gain, dead volume (and a constant unmeasured load).
 
-        Each but the load carries a prior from the parameter set: centred on its value, as
-        wide as the set's stated uncertainty (:data:`DEFAULT_UNCERTAINTY` where it states
-        none), so that the baseline takes up what is error of the nominal values and leaves
-        the effects what is physics.
+        :func:`~exo_has_sim.diagnosis.has_baseline.baseline_parameters`: the load's level is
+        fitted where it is neither measured nor each window's own (:attr:`window_load`).
         """
-        p = self.params
-
-        def prior(name: str) -> float | None:
-            spread = p.uncertainty.get(name, DEFAULT_UNCERTAINTY.get(name))
-            return None if spread is None else math.log1p(spread)
-
-        out = [
-            Parameter('bulk_modulus', 'Pa', p.bulk_modulus, 5e7, 3e9,
-                      'effective bulk modulus E_y of oil, hose and seals',
-                      prior=prior('bulk_modulus')),
-            Parameter('pump_leakage', 'm^3/(s Pa)', p.pump_leakage, 1e-16, 1e-11,
-                      'pump inner leakage coefficient L_n', prior=prior('pump_leakage'),
-                      negligible_floor=True),
-            Parameter('damping', 'N s/m', p.damping, 10.0, 1e5, 'viscous damping B',
-                      prior=prior('damping'), negligible_floor=True),
-            Parameter('motor_time_constant', 's', p.motor_time_constant,
-                      p.motor_time_constant / 10.0, p.motor_time_constant * 10.0,
-                      'time constant of the motor speed loop',
-                      prior=prior('motor_time_constant')),
-            Parameter('pump_displacement', 'm^3/rad', p.pump_displacement,
-                      p.pump_displacement / 2.0, p.pump_displacement * 2.0,
-                      'effective pump displacement: the flow gain, volumetric efficiency '
-                      'included', prior=prior('pump_displacement')),
-            Parameter('dead_volume', 'm^3', p.dead_volume, p.dead_volume / 5.0,
-                      p.dead_volume * 5.0, 'oil volume of the rodless side at full retraction',
-                      prior=prior('dead_volume')),
-        ]
-        if p.motor_damping_ratio > 0.0:  # the parameter set's loop is second order already
-            out.append(self._damping_ratio(p.motor_damping_ratio, prior('motor_damping_ratio')))
-        if self.speed_input:  # the measured speed drives the pump: no motor loop to fit
-            out = [q for q in out if q.name not in ('motor_time_constant',
-                                                    'motor_damping_ratio')]
-        if self.rod_chamber:
-            spread = p.uncertainty.get('charge_pressure')
-            out += [
-                Parameter('charge_pressure', 'Pa', p.charge_pressure, -0.05e6,
-                          max(10.0 * p.charge_pressure, 2e6), 'pressure of the charge line, '
-                          'accumulator or tank the low-pressure chamber returns to',
-                          scale=CHARGE_SCALE, prior=None if spread is None else
-                          spread * max(p.charge_pressure, CHARGE_SCALE) / CHARGE_SCALE),
-                Parameter('return_conductance', 'm^3/(s Pa)', p.return_conductance,
-                          p.return_conductance / 100.0, p.return_conductance * 100.0,
-                          "conductance of the low-pressure chamber's return path",
-                          prior=prior('return_conductance'))]
-            if p.charge_stiffness > 0.0:
-                out.append(Parameter('charge_stiffness', 'Pa/m', p.charge_stiffness,
-                                     p.charge_stiffness / 10.0, p.charge_stiffness * 10.0,
-                                     "fall of the accumulator's pressure per metre of "
-                                     'extension', prior=prior('charge_stiffness')))
-        if p.brake_force > 0.0 and 'brake_force' in p.uncertainty:
-            # A brake known only roughly (its file states an uncertainty) is fitted; one
-            # stated exactly is held.
-            out.append(Parameter('brake_force', 'N', p.brake_force, p.brake_force / 20.0,
-                                 p.brake_force * 20.0, 'force of the known brake',
-                                 prior=prior('brake_force')))
-        if self._load is None and not self.window_load:
-            # Linear: a rig's load may be nil or pull (a horizontal cylinder, a spring).
-            out.append(Parameter('load_force', 'N', self._load_guess, -p.peak_thrust,
-                                 2.0 * p.peak_thrust, 'constant external load force pushing '
-                                 'the cylinder in', scale=0.05 * p.peak_thrust))
-        return tuple(out)
+        load_guess = self._load_guess if self._load is None and not self.window_load else None
+        return baseline_parameters(self.params, self.speed_input, load_guess)
 
     @property
     def limit_kind(self) -> str:
@@ -379,7 +292,7 @@ class HasPlant(Plant):
         if linearised_at is None:
             predicted = super().predict(candidates, span)
             changes = self._load_sensitivities(candidates, span, predicted)
-            return predicted + _moved(changes, self._window_gains(predicted, changes, span))
+            return predicted + moved(changes, self._window_gains(predicted, changes, span))
         changes, gains = self._linearisation(linearised_at, span)
         size = np.linalg.norm(gains[0], axis=-1)  # each window's load terms [steps]
         direction = gains[0] / np.where(size > 0.0, size, 1.0)[:, None]
@@ -389,8 +302,8 @@ class HasPlant(Plant):
         # The candidate at the loads of the base, as its own sensitivities put them (along
         # them, one step in one simulation), less the base's sensitivities' share.
         at_guess: FloatArray = bare + size[:, None, None] * (pushed - bare) \
-            - _moved(changes, gains)
-        return at_guess + _moved(changes, self._window_gains(at_guess, changes, span))
+            - moved(changes, gains)
+        return at_guess + moved(changes, self._window_gains(at_guess, changes, span))
 
     def _window_gains(self, predicted: FloatArray, changes: FloatArray,
                       span: Span) -> FloatArray:
@@ -399,34 +312,9 @@ class HasPlant(Plant):
         ``predicted`` at the load guess, ``changes`` per term (:meth:`_load_sensitivities`,
         or one candidate's for all); shape (candidates, windows, terms).
         """
-        step = WINDOW_LOAD_STEP * self.params.peak_thrust
-        terms = WINDOW_LOAD_DEGREE + 1
         error = self.measured(span)[None, ..., 0] - predicted[..., 0]
-        basis = changes[..., 0, :]  # the position's sensitivities, (..., horizon, term)
-        normal = np.einsum('...ki,...kj->...ij', basis, basis)
-        right = np.einsum('...ki,...k->...i', basis, error)
-        # A window where the load does not move the position (cavitation, a stop) keeps
-        # the guess: the ridge is negligible against any sensitivity that counts.
-        ridge = 1e-12 * np.trace(normal, axis1=-2, axis2=-1)[..., None, None] + 1e-300
-        with np.errstate(invalid='ignore', over='ignore'):
-            gains = np.linalg.solve(np.broadcast_to(normal + ridge * np.eye(terms),
-                                                    (*right.shape, terms)),
-                                    right[..., None])[..., 0]
-        gains = np.where(np.isfinite(gains), gains, 0.0)
-        # The load across each window at a few instants, and the constant fit where it leaves
-        # what the cylinder can carry.
-        low, high = self.load_bounds()
-        shapes = np.stack([Legendre.basis(d)(np.linspace(-1.0, 1.0, 9)) for d in range(terms)])
-        path = self._load_guess + step * gains @ shapes
-        outside = (path.min(axis=-1) < low) | (path.max(axis=-1) > high)
-        if np.any(outside):
-            level = right[..., 0] / (normal[..., 0, 0] + ridge[..., 0, 0])
-            level = np.clip(level, (low - self._load_guess) / step,
-                            (high - self._load_guess) / step)
-            constant = np.zeros_like(gains)
-            constant[..., 0] = level
-            gains = np.where(outside[..., None], constant, gains)
-        return np.asarray(gains, dtype=float)
+        return window_gains(error, changes, self._load_guess,
+                            WINDOW_LOAD_STEP * self.params.peak_thrust, self.load_bounds())
 
     def _load_sensitivities(self, candidates: Sequence[Candidate], span: Span,
                             predicted: FloatArray) -> FloatArray:
@@ -482,14 +370,7 @@ class HasPlant(Plant):
         """
         if self.params.motor_damping_ratio > 0.0 or self.speed_input:
             return {}
-        return {'second_order_motor': (self._damping_ratio(0.7, None, SECOND_ORDER_GRID),)}
-
-    @staticmethod
-    def _damping_ratio(start: float, prior: float | None,
-                       grid: tuple[float, ...] = ()) -> Parameter:
-        return Parameter('motor_damping_ratio', '-', start, 0.1, 5.0,
-                         'damping ratio of the second-order motor speed loop', prior=prior,
-                         grid=grid)
+        return {'second_order_motor': (damping_ratio_parameter(0.7, None, SECOND_ORDER_GRID),)}
 
     @property
     def effects(self) -> tuple[str, ...]:
@@ -498,9 +379,7 @@ class HasPlant(Plant):
         Not a delay with the measured speed as the input, nor a braking load where the
         parameter set has a brake (its force is then the baseline's).
         """
-        return tuple(e for e in ('coulomb_friction', 'braking_load', 'pump_deadzone',
-                                 'transport_delay', 'quadratic_leakage', 'relief_valve',
-                                 'entrained_air')
+        return tuple(e for e in effects_of(self.kind)
                      if not (self.speed_input and e == 'transport_delay')
                      and not (self.params.brake_force > 0.0 and e == 'braking_load'))
 
@@ -542,36 +421,23 @@ class HasPlant(Plant):
         return has_effect_parameters(effect, self.params, self.record)
 
     def candidate_parameters(self, values: Candidate) -> tuple[HasParameters, float]:
-        """Parameter set of a candidate and its transport delay [s]."""
-        p = self.params
-        sizes = {k: float(values[k]) for k in ('coulomb_friction', 'pump_deadzone',
-                                               'quadratic_leakage') if k in values}
-        if 'entrained_air' in values:
-            sizes['entrained_air'] = model_air_fraction(float(values['entrained_air']))
-        if 'relief_crack_pressure' in values:
-            sizes['relief_crack_pressure'] = float(values['relief_crack_pressure'])
-            sizes['relief_crack_conductance'] = float(
-                values.get('relief_crack_conductance', RELIEF_CRACK_CONDUCTANCE))
-        nuisance: dict[str, Any] = {name: float(values.get(name, getattr(p, name)))
-                                    for name in NUISANCE}
-        params = replace(p, **nuisance, effects=Effects(**sizes))
-        return params, float(values.get('transport_delay', 0.0))
+        """Parameter set of a candidate and its transport delay [s].
+
+        :func:`~exo_has_sim.diagnosis.has_baseline.candidate_parameters` on the plant's set.
+        """
+        return candidate_parameters(self.params, values)
 
     def drive(self, delay: float, time_constant: float | None = None,
               damping_ratio: float | None = None) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Motor speed [rad/s], its rate [rad/s^2] and spool position [-] at every sample.
 
         The commands, delayed by ``delay`` (to the nearest sample) and held, through the speed
-        loop of ``time_constant`` [s] and ``damping_ratio`` (defaults: the parameter set's;
-        first order for a ratio of 0, else second order as :mod:`exo_has_sim.model` has it;
-        exact for held inputs; the switched circuit's one-way motor follows their size), or
-        the measured speed itself with :attr:`speed_input`. The compact valve's spool follows
-        the model's valve law (:func:`exo_has_sim.model.spool_target`, driven by the speed and
-        the measured or load-bearing pressure), the switched circuit's direction valve the
-        command's sign (held within ``valve_release_speed``), each through its first-order
-        lag, sample by sample; the closed circuit has no valve to move (1). The drive's
-        torque limit is not applied here: a start state that it would have held back is
-        forgotten in the burn-in.
+        loop of ``time_constant`` [s] and ``damping_ratio`` (defaults: the parameter set's), or
+        the measured speed itself with :attr:`speed_input`, and the valve, the compact one's
+        law driven by the speed and the measured or load-bearing pressure
+        (:func:`~exo_has_sim.diagnosis.has_drive.drive_histories`); the last
+        :data:`DRIVE_CACHE` kept. The drive's torque limit is not applied here: a start state
+        that it would have held back is forgotten in the burn-in.
         """
         params = self.params
         tau = params.motor_time_constant if time_constant is None else time_constant
@@ -581,42 +447,15 @@ class HasPlant(Plant):
         if key not in self._drive_cache:
             if len(self._drive_cache) >= DRIVE_CACHE:  # a fit's latest points matter
                 self._drive_cache.pop(next(iter(self._drive_cache)))
-            period = self.measurement.period
-            command = np.concatenate((np.full(lag, self._u[0]), self._u[:len(self._u) - lag]))
-            command = np.clip(command, -params.motor_speed_max, params.motor_speed_max)
-            one_way = params.circuit == 'switched'
-            if self.speed_input:
-                speed, rate = np.abs(command) if one_way else command, np.zeros(len(command))
+            if self._p is not None:
+                pressure = self._p
             else:
-                asked = np.abs(command) if one_way else command
-                # The speed at sample k + 1 results from the command held over sample k.
-                if zeta > 0.0:
-                    response, rate = _second_order(asked, period, tau, zeta)
-                    rate = np.concatenate(([0.0], rate[:-1]))
-                else:
-                    response, rate = _first_order(asked, period, tau), np.zeros(len(asked))
-                speed = np.concatenate(([asked[0]], response[:-1]))
-            gain = 1.0 - math.exp(-period / params.valve_time_constant)
-            spool = np.ones(len(speed))
-            if one_way:
-                s = 1.0
-                for k in range(len(speed)):
-                    spool[k] = s
-                    if abs(command[k]) > params.valve_release_speed:
-                        s += gain * (math.copysign(1.0, command[k]) - s)
-            elif params.circuit != 'closed':
-                if self._p is not None:
-                    pressure = self._p
-                else:
-                    load = self._load if self._load is not None \
-                        else self._load_guess + self._rod_force
-                    pressure = load / params.area_a
-                prm = model.pack(params)
-                s = 1.0
-                for k in range(len(speed)):
-                    spool[k] = s
-                    s += gain * (model.spool_target(speed[k], pressure[k], s, prm) - s)
-            self._drive_cache[key] = (speed, rate, spool)
+                load = self._load if self._load is not None \
+                    else self._load_guess + self._rod_force
+                pressure = load / params.area_a
+            self._drive_cache[key] = drive_histories(self._u, lag, params,
+                                                     self.measurement.period, tau, zeta,
+                                                     self.speed_input, pressure)
         return self._drive_cache[key]
 
     def initial_states(self, params: HasParameters, delay: float, load: FloatArray,
@@ -684,8 +523,7 @@ class HasPlant(Plant):
         windows = len(starts)
         extra = None
         if window_loads is not None:
-            shapes = np.stack([Legendre.basis(d)(np.linspace(-1.0, 1.0, horizon))
-                               for d in range(window_loads.shape[1])])
+            shapes = load_shapes(window_loads.shape[1], horizon)
             extra = WINDOW_LOAD_STEP * self.params.peak_thrust * (window_loads @ shapes).T
         packed, delays, commands, loads, states = [], [], [], [], []
         for values in candidates:
@@ -727,14 +565,6 @@ class HasPlant(Plant):
         return np.stack(out, axis=-1)
 
 
-def _moved(changes: FloatArray, gains: FloatArray) -> FloatArray:
-    """Return the outputs' change by windows' load terms.
-
-    ``changes`` per term, shape (..., horizon, output, term); ``gains``, (..., term).
-    """
-    return np.asarray(np.einsum('...hoi,...i->...ho', changes, gains), dtype=float)
-
-
 def _integrate(packed: FloatArray, delay: FloatArray, y0: FloatArray, commands: FloatArray,
                loads: FloatArray, period: float) -> FloatArray:
     """Integrate N joints open loop at :data:`HAS_ATOL`, :data:`HAS_RTOL`.
@@ -751,32 +581,3 @@ def _integrate(packed: FloatArray, delay: FloatArray, y0: FloatArray, commands: 
     return simulate.integrate_packed(packed, delay, y0, commands, loads, period,
                                      rtol=HAS_RTOL, atol=HAS_ATOL)
 
-
-def _second_order(values: FloatArray, period: float, time_constant: float,
-                  damping_ratio: float) -> tuple[FloatArray, FloatArray]:
-    """Response and rate at the samples of the second-order speed loop to a held input.
-
-    ``n'' = w^2 (u - n) - 2 zeta w n'`` with ``w = 2 zeta / time_constant``
-    (:func:`exo_has_sim.model.rhs`), from rest at the first input, discretised exactly for an
-    input held over each period.
-    """
-    omega = 2.0 * damping_ratio / time_constant
-    a = np.array([[0.0, 1.0], [-omega * omega, -2.0 * damping_ratio * omega]])
-    b = np.array([0.0, omega * omega])
-    augmented = np.zeros((3, 3))
-    augmented[:2, :2], augmented[:2, 2] = a * period, b * period
-    transition = expm(augmented)
-    phi, gamma = transition[:2, :2], transition[:2, 2]
-    state = np.array([values[0], 0.0])
-    out = np.empty((len(values), 2))
-    for k, u in enumerate(values):
-        state = phi @ state + gamma * u
-        out[k] = state
-    return out[:, 0], out[:, 1]
-
-
-def _first_order(values: FloatArray, period: float, time_constant: float) -> FloatArray:
-    """Response at the samples of a first-order lag to an input held over each period."""
-    alpha = 1.0 - math.exp(-period / time_constant)
-    out = lfilter([alpha], [1.0, alpha - 1.0], values, zi=[(1.0 - alpha) * values[0]])
-    return np.asarray(out[0], dtype=float)

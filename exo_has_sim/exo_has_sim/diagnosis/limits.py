@@ -45,9 +45,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from exo_has_sim.diagnosis.compare import Span
-from exo_has_sim.diagnosis.effects import EFFECTS
+from exo_has_sim.diagnosis.effects import EFFECTS, effect_title
 from exo_has_sim.diagnosis.fitting import JACOBIAN_STEP, Evaluation, Fit, FloatArray, evaluate
-from exo_has_sim.diagnosis.plants import Plant
+from exo_has_sim.diagnosis.plants import WindowedModel
 from exo_has_sim.diagnosis.selection import Score
 
 #: Sizes tried per effect: a geometric ladder from a quarter of the weakest size of its
@@ -64,7 +64,7 @@ BELOW_GRID = 4.0
 #: records four steps stronger; on the third, where the bulk modulus takes up free air and
 #: the motor's lag a delay to second order, entrained air and a delay in 0 to 17 % at any
 #: margin, a dead zone in half) or the effect was not measured (a braking load).
-#: The kinds are :attr:`~exo_has_sim.diagnosis.plants.Plant.limit_kind`'s; the generic mass
+#: The kinds are :attr:`~exo_has_sim.diagnosis.plants.WindowedModel.limit_kind`'s; the generic mass
 #: plant's limits were not measured so, and none is stated.
 LIMIT_MARGIN: dict[str, dict[str, int | None]] = {
     'rodless': {'coulomb_friction': 2, 'pump_deadzone': 2, 'transport_delay': 2,
@@ -128,7 +128,7 @@ class DetectionLimit:
 
     def sentence(self) -> str:
         """Say the limit in words, for the report and the summary."""
-        title = EFFECTS[self.effect].title if self.effect in EFFECTS else self.effect
+        title = effect_title(self.effect)
         weaker = 'under' if _grows_with_size(self.effect) else 'above'
         unit = '' if self.unit in ('', '-') else f' {self.unit}'
         why = ('' if self.refused is None else
@@ -255,7 +255,7 @@ def _named_over(change: FloatArray, r0: FloatArray, weights: FloatArray, added: 
 class _Projection:
     """What a model's own parameters absorb of a change of its prediction, to first order."""
 
-    def __init__(self, plant: Plant, model: Fit, span: Span, weights: FloatArray,
+    def __init__(self, plant: WindowedModel, model: Fit, span: Span, weights: FloatArray,
                  base: FloatArray) -> None:
         candidates = []
         for parameter in model.free:
@@ -282,7 +282,7 @@ class _Projection:
         return flat.reshape(change.shape)
 
 
-def detection_limits(plant: Plant, model: Fit, model_validation: Evaluation, span: Span,
+def detection_limits(plant: WindowedModel, model: Fit, model_validation: Evaluation, span: Span,
                      weights: FloatArray, effects: Sequence[str],
                      structures: Mapping[str, Sequence[float]] | None = None,
                      ) -> dict[str, DetectionLimit]:
@@ -290,7 +290,7 @@ def detection_limits(plant: Plant, model: Fit, model_validation: Evaluation, spa
 
     Parameters
     ----------
-    plant : Plant
+    plant : WindowedModel
         The plant and its measurement.
     model : Fit
         The final model (the baseline, or it extended with the named causes).

@@ -14,8 +14,15 @@ import numpy as np
 from numba import njit
 
 from exo_has_sim.diagnosis.data import Measurement
-from exo_has_sim.diagnosis.effects import mass_effect_parameters
-from exo_has_sim.diagnosis.plants import Candidate, FloatArray, IntArray, Parameter, Plant, smooth
+from exo_has_sim.diagnosis.effects import effects_of, mass_effect_parameters
+from exo_has_sim.diagnosis.plants import (
+    Candidate,
+    FloatArray,
+    IntArray,
+    Parameter,
+    WindowedModel,
+    smooth,
+)
 from exo_has_sim.errors import DiagnosisError
 
 
@@ -64,7 +71,7 @@ def _mass_windows(prm: np.ndarray, cumulative: np.ndarray, force: np.ndarray,
                 out[c, w, k] = x
 
 
-class MassPlant(Plant):
+class MassPlant(WindowedModel):
     """A generic position actuator: a mass with viscous damping and a force offset.
 
     ``M dv/dt = F - F_v v - offset``, input ``force`` [N], output ``position`` [m]. The
@@ -123,8 +130,8 @@ class MassPlant(Plant):
 
     @property
     def effects(self) -> tuple[str, ...]:
-        """Coulomb friction, transport delay and a force dead zone."""
-        return ('coulomb_friction', 'transport_delay', 'pump_deadzone')
+        """Coulomb friction, a force dead zone and transport delay (:func:`effects_of`)."""
+        return effects_of(self.kind)
 
     def effect_parameters(self, effect: str) -> tuple[Parameter, ...]:
         """Size parameters of the mass plant's effects."""

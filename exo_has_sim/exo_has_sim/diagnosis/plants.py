@@ -1,11 +1,12 @@
 """What the diagnosis fits: a plant's parameters, and the plant over windows of a measurement.
 
-A plant here is the model of one actuator as a function of its parameters: given parameter
-candidates (dicts of values by name) and the windows of a measurement, it returns the outputs
-it predicts in every window, for all candidates at once, so that a finite-difference Jacobian
-or a grid over an effect's size costs one call. The plants are
+A plant here is the model of one actuator as a function of its parameters, a
+:class:`WindowedModel`: given parameter candidates (dicts of values by name) and the windows of a
+measurement, it returns the outputs it predicts in every window, for all candidates at once, so
+that a finite-difference Jacobian or a grid over an effect's size costs one call. The plants are
 :class:`~exo_has_sim.diagnosis.has_plant.HasPlant` (the project's HAS model) and
-:class:`~exo_has_sim.diagnosis.mass_plant.MassPlant` (a generic mass).
+:class:`~exo_has_sim.diagnosis.mass_plant.MassPlant` (a generic mass); the simulated HAS that
+the nodes run is another thing, :class:`exo_has_sim.plant.Plant`.
 
 Comparison over windows. A hydraulic cylinder integrates the pump's flow, so a simulation run
 open loop from the measured command over a whole record drifts with any small error of the
@@ -143,8 +144,10 @@ def smooth(values: FloatArray, period: float, derivative: int = 0) -> FloatArray
     return np.asarray(result, dtype=float)
 
 
-class Plant(ABC):
+class WindowedModel(ABC):
     """A model of one actuator whose outputs can be predicted over windows of a measurement.
+
+    What the diagnosis fits, as a function of its parameters (module docstring).
 
     Attributes
     ----------

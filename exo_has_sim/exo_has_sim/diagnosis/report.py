@@ -15,8 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from exo_has_sim.diagnosis.diagnose import Diagnosis, by_reason, effect_title
-from exo_has_sim.diagnosis.effects import EFFECTS
+from exo_has_sim.diagnosis.effects import EFFECTS, effect_title
+from exo_has_sim.diagnosis.result import Diagnosis, by_reason
 from exo_has_sim.diagnosis.selection import ALPHA, MIN_GAIN
 
 #: Validation windows shown in the prediction plot.
@@ -329,7 +329,9 @@ def _plot_tests(d: Diagnosis, path: Path) -> None:
     fig, axes = plt.subplots(1, 2, figsize=(9, 3))
     for ax, kind in zip(axes, ('auto', 'cross'), strict=True):
         for name, colour in (('baseline', 'C0'), ('extended', 'C3')):
-            test = d.tests[f'{name}_{kind}']
+            test = d.tests.get(f'{name}_{kind}')
+            if test is None:  # a structure verdict extends no model: the baseline's alone
+                continue
             ax.plot(test.lags, test.values, 'o-', ms=2, color=colour, lw=0.8, label=name)
         band = d.tests[f'baseline_{kind}'].band
         ax.axhspan(-band, band, color='0.85', label='99 % band')

@@ -50,7 +50,7 @@ from exo_has_sim.diagnosis.fitting import (
     fit_parameters,
     robust_loss,
 )
-from exo_has_sim.diagnosis.plants import Plant
+from exo_has_sim.diagnosis.plants import WindowedModel
 from exo_has_sim.errors import FitError
 
 #: Significance level of the t-test across the validation windows.
@@ -174,7 +174,7 @@ class Score:
         return self.validation.fit(0)
 
 
-def _screen(plant: Plant, reference: Fit, effects: Sequence[str], windows: Windows,
+def _screen(plant: WindowedModel, reference: Fit, effects: Sequence[str], windows: Windows,
             weights: FloatArray) -> tuple[dict[str, tuple[dict[str, float], float]], float]:
     """Try each effect's size grid on the reference model (one plant call).
 
@@ -211,7 +211,7 @@ def _screen(plant: Plant, reference: Fit, effects: Sequence[str], windows: Windo
             candidates.append(reference.values | others | {added[0].name: value})
             owners.append(effect)
     # The grid's points are linearised at the reference (a window's unmeasured load,
-    # Plant.predict): half the simulations, and screening only chooses what to fit.
+    # WindowedModel.predict): half the simulations, and screening only chooses what to fit.
     evaluations = evaluate(plant, candidates, span, weights, linearised_at=reference.values)
     jacobian, solve = None, None
     if reference.jacobian is not None and reference.jacobian.size:
@@ -253,7 +253,7 @@ def _screen(plant: Plant, reference: Fit, effects: Sequence[str], windows: Windo
     return best, reference_cost
 
 
-def _strays(plant: Plant, reference: Fit) -> dict[str, float]:
+def _strays(plant: WindowedModel, reference: Fit) -> dict[str, float]:
     """Return the baseline parameters beyond :data:`STRAY_FACTOR` of their start, at it."""
     out = {}
     for parameter in plant.baseline:
@@ -264,13 +264,13 @@ def _strays(plant: Plant, reference: Fit) -> dict[str, float]:
     return out
 
 
-def _strayed(plant: Plant, reference: Fit) -> bool:
+def _strayed(plant: WindowedModel, reference: Fit) -> bool:
     """Tell whether a baseline parameter lies beyond :data:`STRAY_FACTOR` of its start."""
     return bool(_strays(plant, reference))
 
 
-def rank(plant: Plant, reference: Fit, reference_validation: Evaluation, named: Sequence[str],
-         effects: Sequence[str], windows: Windows, weights: FloatArray,
+def rank(plant: WindowedModel, reference: Fit, reference_validation: Evaluation,
+         named: Sequence[str], effects: Sequence[str], windows: Windows, weights: FloatArray,
          progress: Progress | None = None, every: bool = False,
          retry: Callable[[Score], bool] | None = None,
          budget: FitBudget | None = None) -> list[Score]:
@@ -377,7 +377,7 @@ def rivals(ranking: Sequence[Score]) -> list[str]:
             if score.significant and _paired_p(best.validation, score.validation) >= ALPHA]
 
 
-def hidden_rivals(plant: Plant, steps: Sequence[Sequence[Score]], baseline: Fit,
+def hidden_rivals(plant: WindowedModel, steps: Sequence[Sequence[Score]], baseline: Fit,
                   baseline_validation: Evaluation, windows: Windows, weights: FloatArray,
                   effects: Sequence[str], progress: Progress | None = None,
                   ) -> dict[str, list[str]]:
@@ -385,7 +385,7 @@ def hidden_rivals(plant: Plant, steps: Sequence[Sequence[Score]], baseline: Fit,
 
     The diagnosis passes those the signals cannot identify and, without a pressure signal,
     every other effect too. An unidentifiable one
-    (:attr:`~exo_has_sim.diagnosis.plants.Plant.unidentifiable`) is never named, but it may
+    (:attr:`~exo_has_sim.diagnosis.plants.WindowedModel.unidentifiable`) is never named, but it may
     still produce what a named one is named for: in a record of the
     position alone, friction moves the pressure at each reversal, and the leakage turns that
     into lost motion, as a dead zone or a delay would. So each step's named choice is checked
@@ -455,7 +455,7 @@ def _paired_p(better: Evaluation, other: Evaluation) -> float:
     return float(t_distribution.cdf(mean / (spread / math.sqrt(n)), n - 1))
 
 
-def _against_own_start(plant: Plant, score: Score, reference: Fit, windows: Windows,
+def _against_own_start(plant: WindowedModel, score: Score, reference: Fit, windows: Windows,
                        weights: FloatArray) -> Score:
     """Score an extension against its reference re-fitted from the extension's own values.
 
@@ -480,16 +480,16 @@ def _against_own_start(plant: Plant, score: Score, reference: Fit, windows: Wind
     return replace(score, reference=validation, own_start=True)
 
 
-def forward_selection(plant: Plant, baseline: Fit, baseline_validation: Evaluation,
+def forward_selection(plant: WindowedModel, baseline: Fit, baseline_validation: Evaluation,
                       windows: Windows, weights: FloatArray, effects: Sequence[str],
                       max_causes: int = 2,
                       progress: Progress | None = None) -> list[list[Score]]:
     """Rank the effects, name the best significant one, and repeat on the extended model.
 
-    The plant's alternative structures (:attr:`Plant.alternatives`) compete in every ranking
-    with the effects, by the same rules, so that neither takes what the other explains better
-    (a second-order motor loop and a transport delay both delay the response); one taken
-    extends the model as an effect does but is no cause and does not count against
+    The plant's alternative structures (:attr:`WindowedModel.alternatives`) compete in every
+    ranking with the effects, by the same rules, so that neither takes what the other explains
+    better (a second-order motor loop and a transport delay both delay the response); one
+    taken extends the model as an effect does but is no cause and does not count against
     ``max_causes``. Where the data cannot tell a structure from an effect, the better-ranked
     goes first and the other is reported as indistinguishable (:func:`rivals`): with the
     structure first, no alarm is raised for what may be the nominal model's shape (a false

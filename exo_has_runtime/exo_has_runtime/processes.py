@@ -1,0 +1,163 @@
+"""Start nodes as separate processes for tests, without launch files.
+
+A :class:`NodeProcess` runs ``python -m MODULE ARGS...`` with its output in a file, can wait for
+a line of that output, and stops the process as ``ros2 launch`` would: SIGINT, then SIGTERM,
+then SIGKILL. The process is tied to the one that started it
+(:mod:`exo_has_runtime.tether`): it gets SIGTERM when its starter dies, however that
+dies, so no node outlives the session or test that owns it. It runs in a session (and process
+group) of its own, so that a terminal's Ctrl-C or hang-up reaches only the owner, which stops
+its nodes in order.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+import weakref
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from types import TracebackType
+from typing import IO
+
+
+class NodeProcess:
+    """A node (or any Python module) running in its own process.
+
+    Parameters
+    ----------
+    module : str
+        Module run with ``python -m``.
+    args : Sequence[str]
+        Its arguments.
+    env : Mapping[str, str] or None
+        Extra environment variables.
+    log_path : Path or None
+        File for the output; a new temporary file by default.
+    stdin : bool
+        Whether to keep a pipe to the process's standard input for :meth:`send` (a simulated
+        device's fault injection, say); otherwise it reads /dev/null.
+    netns : str or None
+        Network namespace to run in (``/proc/<pid>/ns/net``, or ``new``); None: this one.
+
+    """
+
+    def __init__(self, module: str, args: Sequence[str] = (),
+                 env: Mapping[str, str] | None = None, log_path: Path | None = None,
+                 stdin: bool = False, netns: str | None = None) -> None:
+        self.module = module
+        # Kept open while the process runs; closed by stop().
+        self._log: IO[bytes]
+        if log_path is None:
+            self._log = tempfile.NamedTemporaryFile(
+                prefix=module.rsplit('.', 1)[-1] + '-', suffix='.log', delete=False)
+        else:
+            self._log = Path(log_path).open('wb')
+        self.log_path = Path(self._log.name)
+        if log_path is None:
+            # Readable (``output``) for as long as this object lives, then removed: a test
+            # suite starts thousands of processes and would leave each one's log behind.
+            weakref.finalize(self, self.log_path.unlink, missing_ok=True)
+        self.process = subprocess.Popen(
+            [sys.executable, '-u', '-m', 'exo_has_runtime.tether', str(os.getpid()),
+             *(('--netns', netns) if netns is not None else ()), module, *args],
+            stdout=self._log, start_new_session=True,
+            stderr=subprocess.STDOUT, stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,
+            text=stdin,
+            env={**os.environ, **(env or {})},
+            # -m puts the working directory first on sys.path; in a workspace root the package
+            # folders would shadow the installed packages, so run from a neutral folder.
+            cwd=tempfile.gettempdir())
+
+    def __enter__(self) -> NodeProcess:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.stop()
+
+    @property
+    def output(self) -> str:
+        """Everything the process wrote so far (stdout and stderr)."""
+        return self.log_path.read_text(encoding='utf-8', errors='replace')
+
+    def wait_for_output(self, pattern: str, timeout_s: float = 10.0) -> re.Match[str]:
+        """Wait until the output matches a regular expression.
+
+        Raises
+        ------
+        TimeoutError
+            If it does not within the timeout, or the process ends first; the output is quoted.
+
+        """
+        deadline = time.monotonic() + timeout_s
+        compiled = re.compile(pattern)
+        while True:
+            match = compiled.search(self.output)
+            if match:
+                return match
+            if self.process.poll() is not None or time.monotonic() > deadline:
+                state = (f'exited with {self.process.returncode}'
+                         if self.process.poll() is not None else f'no match in {timeout_s} s')
+                msg = f'{self.module}: {state} waiting for {pattern!r}; output:\n{self.output}'
+                raise TimeoutError(msg)
+            time.sleep(0.02)
+
+    def runs_at_realtime_priority(self, priority: int) -> bool:
+        """Whether the main thread runs under ``SCHED_FIFO`` at ``priority``.
+
+        Where the process said it had no permission for it (exo_has_common.realtime), whether
+        it runs under the default scheduler instead.
+        """
+        pid = self.process.pid
+        if 'no permission' in self.output:
+            return os.sched_getscheduler(pid) == os.SCHED_OTHER
+        return (os.sched_getscheduler(pid), os.sched_getparam(pid).sched_priority) == (
+            os.SCHED_FIFO, priority)
+
+    def send(self, line: str) -> None:
+        """Write a line to the process's standard input.
+
+        Raises
+        ------
+        RuntimeError
+            If the process was started without ``stdin``, or has ended.
+
+        """
+        pipe = self.process.stdin
+        if pipe is None:
+            msg = f'{self.module} was started without a pipe to its standard input'
+            raise RuntimeError(msg)
+        if self.process.poll() is not None:
+            msg = f'{self.module} has ended (exit code {self.process.returncode}): cannot send'
+            raise RuntimeError(msg)
+        pipe.write(line.rstrip('\n') + '\n')
+        pipe.flush()
+
+    def wait(self, timeout_s: float = 10.0) -> int:
+        """Wait for the process to end on its own and return its exit code."""
+        return self.process.wait(timeout=timeout_s)
+
+    def stop(self, timeout_s: float = 5.0) -> int:
+        """Stop the process (SIGINT, SIGTERM, then SIGKILL) and return its exit code."""
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+            if self.process.poll() is not None:
+                break
+            self.process.send_signal(sig)
+            try:
+                self.process.wait(timeout=timeout_s)
+            except subprocess.TimeoutExpired:
+                continue
+        self._log.close()
+        if self.process.stdin is not None:
+            self.process.stdin.close()
+        return self.process.wait()
+
+    def kill(self) -> None:
+        """End the process at once (SIGKILL), as a crash would."""
+        self.process.kill()
+        self.process.wait()

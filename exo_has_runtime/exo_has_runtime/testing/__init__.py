@@ -1,1 +1,0 @@
-"""Helpers for launch-free, multi-process tests of exo_has nodes."""
