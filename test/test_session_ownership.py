@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 from session_observer import Observer
 
-from exo_has_bringup.analysis import read_session
+from exo_has_bringup.analysis import final_stop, read_session
 from exo_has_bringup.plan import SessionConfig
 from exo_has_bringup.report import write_report
 from exo_has_bringup.runner import ORPHAN_BOUND, STOP_BOUND, Session
@@ -160,6 +160,10 @@ def test_a_second_plant_on_a_running_session_is_fatal_names_both_and_stops_every
     report = write_report(data, tmp_path / 'report', config.motions, config.durations,
                           bag=running.bag).read_text()
     assert 'second source' in report and '/rogue_plant' in report
+    # And the demo would exit non-zero: the session ended in its first FATAL stop (never
+    # reset), the second source's or, where the rogue's first state came first, its pressure's.
+    fatal = [e for e in data.events if e.severity == SafetyEvent.SEVERITY_FATAL]
+    assert final_stop(data.events) == min(fatal, key=lambda e: e.t)
 
 
 def test_a_demo_started_beside_a_running_one_refuses_naming_the_nodes_it_found(tmp_path):

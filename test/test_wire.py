@@ -47,7 +47,7 @@ MESSAGES = {
     'exo_has_msgs/msg/SafetyEvent': {
         'header': {'stamp': {'sec': 12, 'nanosec': 345_678_901}, 'frame_id': 'base_link'},
         'joint': 'left_knee', 'kind': 1, 'severity': 3, 'value': 1.8e7, 'limit': 1.75e7,
-        'latched': True, 'text': 'safety valve open: p_A 18.0 MPa \u2265 17.5 MPa'},
+        'latched': True, 'text': 'safety valve open: p_A 18.0 MPa \u2265 17.5 MPa', 'phase': 1},
     'sensor_msgs/msg/JointState': {
         'header': {'stamp': {'sec': 7, 'nanosec': 1}, 'frame_id': ''},
         'name': ['left_hip', 'left_knee', 'right_hip', 'right_knee'],

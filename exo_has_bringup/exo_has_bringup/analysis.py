@@ -25,6 +25,7 @@ from exo_has_common.topics import (
     has_command_topic,
     has_state_topic,
 )
+from exo_has_driver.events import SafetyKind, Severity
 from exo_has_sim.kinematics import Linkage
 from exo_has_sim.parameters import HasParameters, load_parameters
 
@@ -46,6 +47,7 @@ class RecordedEvent:
     limit: float
     latched: bool
     text: str
+    phase: int = 0  # start; bags recorded before the field existed have none
 
 
 @dataclass
@@ -151,7 +153,8 @@ def read_session(bag: str | Path) -> SessionData:
                 msg = typestore.deserialize_cdr(data, msgtype)
                 events.append(RecordedEvent(
                     _stamp(msg), msg.joint, int(msg.kind), int(msg.severity), float(msg.value),
-                    float(msg.limit), bool(msg.latched), msg.text))
+                    float(msg.limit), bool(msg.latched), msg.text,
+                    int(getattr(msg, 'phase', 0))))
     if not reference_t:
         msg_text = f'{bag}: no joint references on /{JOINT_REFERENCE_TOPIC}'
         raise ValueError(msg_text)
@@ -253,3 +256,23 @@ def rates(data: SessionData) -> dict[str, float]:
         span = float(data.reference_t[-1] - data.reference_t[0])
         result[f'/{JOINT_REFERENCE_TOPIC}'] = (len(data.reference_t) - 1) / span
     return result
+
+
+def final_stop(events: Sequence[RecordedEvent]) -> RecordedEvent | None:
+    """Return the FATAL event whose stop still held when the record ended, or None.
+
+    A stop is the first FATAL event after the last release (a RESET event that is not
+    latched). A release that another source refused (its next event still latched: the driver
+    keeps its own stop while a drive is in fault) leaves the stop where it was. A hold (the
+    ERROR latched on a lost reference) is not a stop: the joints stay under control.
+    """
+    stop = released = None
+    for event in sorted(events, key=lambda e: e.t):
+        if event.severity >= Severity.FATAL:
+            stop = stop or event
+        elif event.kind == SafetyKind.RESET and not event.latched:
+            stop, released = None, stop or released
+        elif event.latched and stop is None and released is not None \
+                and event.severity == Severity.WARN:
+            stop = released  # a refusal: its source still holds the stop it had
+    return stop

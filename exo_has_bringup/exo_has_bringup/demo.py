@@ -5,7 +5,9 @@ drives and sensor boards), the PD controller, the gait publisher, the safety wat
 recorder run as processes (no launch file; the four plants share one, see
 :data:`exo_has_bringup.plan.COMPOSITION`) for about 20 s; the bag goes under
 ``bags/`` and a Markdown report with PNG plots next to it. The last line printed is the
-report's path.
+report's path. Exit status: 0; :data:`STOPPED` when the session ended in a FATAL stop (still
+latched at its end); :data:`FAILED` when a node did not exit cleanly, or the demo could not
+start; 128 + N when signal N ended it.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 
-from exo_has_bringup.analysis import read_session
+from exo_has_bringup.analysis import RecordedEvent, final_stop, read_session
 from exo_has_bringup.errors import DomainInUseError, HostsUnavailableError
 from exo_has_bringup.plan import SessionConfig
 from exo_has_bringup.report import write_report
@@ -29,6 +31,11 @@ from exo_has_bringup.runner import (
     interrupt_on_signals,
     refuse_if_occupied,
 )
+
+#: Exit status of a demo whose session ended in a FATAL stop.
+STOPPED = 3
+#: Exit status of a demo one of whose nodes did not exit cleanly (or that could not start).
+FAILED = 1
 
 
 def warm_up() -> float:
@@ -82,8 +89,33 @@ class LinkFaults:
         return done
 
 
-def run(config: SessionConfig, folder: Path, faults: LinkFaults | None = None) -> Path:
-    """Run a session into folder, write its report; return the report's path."""
+@dataclass(frozen=True)
+class Outcome:
+    """How a demo session ended.
+
+    Attributes
+    ----------
+    report : Path
+        The report's path.
+    stop : RecordedEvent or None
+        The FATAL event whose stop still held at the end (:func:`final_stop`), None if none.
+    failed : dict[str, int]
+        Exit codes of the nodes that did not exit cleanly, by node name.
+
+    """
+
+    report: Path
+    stop: RecordedEvent | None
+    failed: dict[str, int]
+
+    @property
+    def status(self) -> int:
+        """The demo's exit status: :data:`STOPPED`, :data:`FAILED` or 0."""
+        return STOPPED if self.stop is not None else FAILED if self.failed else 0
+
+
+def run(config: SessionConfig, folder: Path, faults: LinkFaults | None = None) -> Outcome:
+    """Run a session into folder, write its report; return how it ended."""
     trials = ', '.join(f'{m} {d:g} s'
                        for m, d in zip(config.motions, config.durations, strict=True))
     joints = ('the hardware driver on simulated CAN devices' if config.hardware == 'can'
@@ -107,8 +139,9 @@ def run(config: SessionConfig, folder: Path, faults: LinkFaults | None = None) -
         print(f'exo-has demo: nodes that did not exit cleanly: {failed}', flush=True)
     assert session.bag is not None
     data = read_session(session.bag)
-    return write_report(data, folder / 'report', config.motions, config.durations,
-                        bag=session.bag, notes=notes, files=config.params or None)
+    report = write_report(data, folder / 'report', config.motions, config.durations,
+                          bag=session.bag, notes=notes, files=config.params or None)
+    return Outcome(report, final_stop(data.events), failed)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -159,18 +192,21 @@ def main(argv: Sequence[str] | None = None) -> int:
                         args.reset_after if args.reset_after >= 0.0 else None)
     try:
         with interrupt_on_signals():
-            report = run(config, folder, faults)
+            outcome = run(config, folder, faults)
     except (DomainInUseError, HostsUnavailableError) as exc:
         print(f'exo-has demo: not started: {exc}', file=sys.stderr, flush=True)
-        return 1
+        return FAILED
     except KeyboardInterrupt as exc:
         signum = exc.signum if isinstance(exc, SessionInterrupted) else signal.SIGINT
         print(f'exo-has demo: interrupted by {signal.Signals(signum).name}: every node stopped, '
               f'no report; the bag (if it was started) is in {folder / "bag"}', flush=True)
         return 128 + signum
     print(f'exo-has demo: bag {folder / "bag"}')
-    print(report)
-    return 0
+    if outcome.stop is not None:
+        print(f'exo-has demo: the session ended in a FATAL stop ({outcome.stop.text}); exit '
+              f'status {STOPPED}', flush=True)
+    print(outcome.report)
+    return outcome.status
 
 
 if __name__ == '__main__':

@@ -263,9 +263,10 @@ def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
     # The controller and the watchdog take the plants' parameters files (linkage, stroke).
     files = tuple(token for kind, path in sorted(config.params.items())
                   for token in ('-p', f'{kind}.params:={path}'))
-    controller = (*files, *config.node_arguments.get('pd_controller', ()))
+    controller = ('-p', f'rate:={config.rate}', *files,
+                  *config.node_arguments.get('pd_controller', ()))
     specs.append(NodeSpec('pd_controller', 'exo_has_control.pd_controller',
-                          ('--ros-args', *controller) if controller else (),
+                          ('--ros-args', *controller),
                           ready=r'controller ready',
                           node_class='exo_has_control.pd_controller:PdController'))
     specs.append(NodeSpec('watchdog', 'exo_has_driver.watchdog', (

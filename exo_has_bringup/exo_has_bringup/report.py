@@ -30,6 +30,8 @@ from exo_has_common.joints import JOINT_NAMES
 from exo_has_sim.parameters import HasParameters
 
 SEVERITIES = ('info', 'warn', 'error', 'fatal')
+#: SafetyEvent's phases, by number.
+PHASES = {0: 'start', 1: 'change', 2: 'clear'}
 
 
 def segments_of(motions: Sequence[str], durations: Sequence[float]) -> list[tuple[str, float,
@@ -152,11 +154,12 @@ def write_report(data: SessionData, folder: Path, motions: Sequence[str],
               f'![motor speeds]({plots["speed"]})', '',
               '## Safety events', '']
     if data.events:
-        lines += ['| t [s] | joint | kind | severity | value | limit | latched | text |',
-                  '|---|---|---|---|---|---|---|---|']
+        lines += ['| t [s] | joint | kind | severity | phase | value | limit | latched | text |',
+                  '|---|---|---|---|---|---|---|---|---|']
         lines += [f'| {e.t - data.start:.3f} | {e.joint or "-"} | {e.kind} | '
-                  f'{SEVERITIES[min(e.severity, 3)]} | {e.value:.4g} | {e.limit:.4g} | '
-                  f'{"yes" if e.latched else "no"} | {e.text} |' for e in data.events]
+                  f'{SEVERITIES[min(e.severity, 3)]} | {PHASES.get(e.phase, e.phase)} | '
+                  f'{e.value:.4g} | {e.limit:.4g} | {"yes" if e.latched else "no"} | {e.text} |'
+                  for e in data.events]
     else:
         lines.append('None.')
     lines += ['', '## Messages', '', '| topic | messages | rate [Hz] |', '|---|---|---|']

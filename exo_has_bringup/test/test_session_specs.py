@@ -76,7 +76,9 @@ def test_extra_arguments_reach_the_node_they_name_and_no_other():
         'watchdog': ('-p', 'batch:=false'), 'pd_controller': ('-p', 'hip.kp:=30.0')})
     arguments = {spec.name: spec.arguments for spec in node_specs(config, Path('bag'))}
     assert arguments['watchdog'][-2:] == ('-p', 'batch:=false')
-    assert arguments['pd_controller'] == ('--ros-args', '-p', 'hip.kp:=30.0')
+    # The controller judges a gain change at the session's rate, which it is given first.
+    assert arguments['pd_controller'] == ('--ros-args', '-p', f'rate:={config.rate}', '-p',
+                                          'hip.kp:=30.0')
     assert not any('batch:=false' in a for name, a in arguments.items() if name != 'watchdog')
 
 

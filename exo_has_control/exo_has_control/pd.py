@@ -15,6 +15,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+from scipy.signal import cont2discrete, tf2ss
+
 from exo_has_sim import linear
 from exo_has_sim.control_law import pd_speed_command
 from exo_has_sim.parameters import HasParameters
@@ -22,6 +25,16 @@ from exo_has_sim.parameters import HasParameters
 #: The paper's gains (section 5.1) in SI: P = 35 (rad/s)/mm, D = 15 (rad/s)/(m/s).
 PAPER_KP = 35.0e3
 PAPER_KD = 15.0
+
+#: Least damping ratio of the sampled, linearised loop's poles that gains may give [1]: above
+#: zero is stable; the margin covers what the linearisation leaves out (the load, the valve,
+#: the saturation). The paper's gains give 0.18 at 200 Hz and 0.11 at 1 kHz (the oil column's
+#: resonance, which a PD law barely damps); doubling kp at 1 kHz gives 0.065, quadrupling it
+#: makes the loop unstable at either rate.
+STABILITY_DAMPING_MIN = 0.05
+#: Where along the stroke the loop is judged, as shares of the stroke: the rodless volume,
+#: and with it the oil's stiffness, changes along it.
+STABILITY_POSITIONS = (0.05, 0.5, 0.95)
 
 
 @dataclass(frozen=True)
@@ -113,3 +126,66 @@ class PositionLoop:
             msg = 'no position measured yet'
             raise ValueError(msg)
         return pd_command(self.gains, x_ref, v_ref, self._last[1], self.velocity)
+
+
+def loop_damping(params: HasParameters, gains: PdGains, period: float) -> float:
+    """Return the least damping ratio of the sampled PD loop on the linearised HAS, on stroke.
+
+    The plant is Eq. 12 (pump speed to position, the model's flow area) behind the motor's
+    first-order speed loop, held over each period (zero-order hold); the command acts one
+    period after the sample it answers (the loop delay of the plant node and of the driver);
+    the velocity is the backward difference of the sampled positions, as :class:`PositionLoop`
+    takes it. Each pole z of the loop is mapped to s = ln(z) / period, whose damping ratio is
+    -Re(s) / |s|; negative: unstable. The feedforward and the saturation do not move the
+    poles; the rodless volume does, so the loop is judged at :data:`STABILITY_POSITIONS`.
+
+    Parameters
+    ----------
+    params : HasParameters
+        The joint's parameter set.
+    gains : PdGains
+        The gains judged.
+    period : float
+        Control period [s].
+
+    """
+    if not (math.isfinite(period) and period > 0.0):
+        msg = f'period must be positive and finite [s], got {period!r}'
+        raise ValueError(msg)
+    least = math.inf
+    for share in STABILITY_POSITIONS:
+        plant = linear.eq12(params, share * params.stroke)
+        den = np.polymul(plant.den, [params.motor_time_constant, 1.0])
+        a, b, c, d = tf2ss(plant.num, den)
+        ad, bd, _, _, _ = cont2discrete((a, b, c, d), period, method='zoh')
+        n = ad.shape[0]
+        # State: the plant's, the previous position sample, the command in flight.
+        loop = np.zeros((n + 2, n + 2))
+        loop[:n, :n] = ad
+        loop[:n, n + 1] = bd[:, 0]
+        loop[n, :n] = c[0]
+        loop[n + 1, :n] = -(gains.kp + gains.kd / period) * c[0]
+        loop[n + 1, n] = gains.kd / period
+        z = np.linalg.eigvals(loop).astype(complex)
+        z = z[np.abs(z) > 1e-9]  # the delay's poles at the origin are dead-beat
+        poles = np.log(z) / period
+        least = min(least, float(np.min(-poles.real / np.abs(poles))))
+    return least
+
+
+def unsafe_gains(params: HasParameters, gains: PdGains, period: float) -> str | None:
+    """Return why gains are unsafe for a joint at a control period [s], or None if they are not.
+
+    Unsafe: a speed limit above the motor's top speed, or a sampled loop whose least damping
+    ratio (:func:`loop_damping`) is under :data:`STABILITY_DAMPING_MIN`.
+    """
+    if gains.speed_limit > params.motor_speed_max:
+        return (f'motor_speed_limit {gains.speed_limit:.5g} rad/s is above the motor top speed '
+                f'{params.motor_speed_max:.5g} rad/s')
+    damping = loop_damping(params, gains, period)
+    if damping < STABILITY_DAMPING_MIN:
+        verdict = 'unstable' if damping < 0.0 else 'too lightly damped'
+        return (f'kp {gains.kp:g}, kd {gains.kd:g} at {1.0 / period:g} Hz make the '
+                f'{params.joint_type} loop {verdict} (least damping ratio {damping:.3f} of the '
+                f'linearised loop, at least {STABILITY_DAMPING_MIN} needed)')
+    return None

@@ -12,15 +12,24 @@ ignored, until a RESET event. After either, each joint rejoins the reference in 
 
     ros2 run exo_has_control pd_controller --ros-args -p joints:="['left_hip', 'left_knee']"
 
-Gains are per joint type, ``hip.kp``, ``hip.kd``, ``hip.kff``, ``knee.kp`` and so on.
+Gains are per joint type, ``hip.kp``, ``hip.kd``, ``hip.kff``, ``hip.motor_speed_limit``,
+``knee.kp`` and so on. They may change while the node runs (``ros2 param set /pd_controller
+hip.kp 50000.0``): a change is judged first (:func:`exo_has_control.pd.unsafe_gains`: the
+sampled loop at ``rate`` on the linearised HAS must stay damped, the limit within the motor's
+top speed) and refused with the reason where unsafe; otherwise it applies from the next state
+on. The executor runs one callback at a time, so a change lands between two commands, never
+inside one. The same judgement refuses unsafe gains at start.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from functools import partial
 from typing import Any
 
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 
@@ -31,7 +40,7 @@ from exo_has_common.topics import (
     has_command_topic,
     has_state_topic,
 )
-from exo_has_control.pd import PAPER_KD, PAPER_KP, PdGains, PositionLoop
+from exo_has_control.pd import PAPER_KD, PAPER_KP, PdGains, PositionLoop, unsafe_gains
 from exo_has_control.tracking import DEFAULT_REJOIN_SPEED, ReferenceFollower
 from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
 from exo_has_runtime.execution import run_node
@@ -45,6 +54,8 @@ from exo_has_sim.parameters import HasParameters, load_parameters
 
 #: Bounds of every gain and of the motor speed limit (in their units).
 GAIN_RANGE = (0.0, 1.0e7)
+#: The parameters of a joint type's gains (``hip.kp``, ...) and the PdGains field of each.
+GAIN_FIELDS = {'kp': 'kp', 'kd': 'kd', 'kff': 'kff', 'motor_speed_limit': 'speed_limit'}
 
 
 class PdController(Node):
@@ -65,12 +76,20 @@ class PdController(Node):
         rejoin_speed = declare(self, 'reference_rejoin_speed', DEFAULT_REJOIN_SPEED,
                                'fastest cylinder speed [m/s] at which a joint joins the '
                                'reference at the start and after a stop or a hold', (0.001, 1.0))
+        rate = declare(self, 'rate', 200.0,
+                       "rate of the states the controller answers [Hz] (the plants' or the "
+                       "driver's): the period at which a gain change is judged", (1.0, 2000.0))
         priority = declare_realtime_priority(self, 'the thread that answers the states')
+        self._period = 1.0 / rate
+        self._params: dict[str, HasParameters] = {}
         self._loops: dict[str, PositionLoop] = {}
         self._followers: dict[str, ReferenceFollower] = {}
         self._command_publishers = {}
         for joint in (check_joint(j) for j in joints):
-            params = self._joint_type_parameters(joint_type_of(joint))
+            kind = joint_type_of(joint)
+            if kind not in self._params:
+                self._params[kind] = self._joint_type_parameters(kind)
+            params = self._params[kind]
             self._loops[joint] = PositionLoop(self._gains(params))
             self._followers[joint] = ReferenceFollower(joint, params, timeout, rejoin_speed)
             self._command_publishers[joint] = self.create_publisher(
@@ -88,6 +107,7 @@ class PdController(Node):
         # a period of the joint without control (bench/closed_loop.py reports the longest gap
         # between commands).
         apply_realtime_priority(self, priority)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
         gains = '; '.join(f'{joint}: kp {loop.gains.kp:g}, kd {loop.gains.kd:g}, '
                           f'kff {loop.gains.kff:.5g}, limit {loop.gains.speed_limit:.5g}'
                           for joint, loop in self._loops.items())
@@ -113,13 +133,43 @@ class PdController(Node):
             ('motor_speed_limit', params.motor_speed_max,
              'motor speed saturation [rad/s] (the paper: 4000 r/min)'),
         )
-        values = {key: declare(self, f'{kind}.{key}', float(default), description, GAIN_RANGE)
+        values = {GAIN_FIELDS[key]: declare(self, f'{kind}.{key}', float(default), description,
+                                            GAIN_RANGE, read_only=False)
                   for key, default, description in specs}
-        if values['motor_speed_limit'] > params.motor_speed_max:
-            msg = (f'{kind}.motor_speed_limit {values["motor_speed_limit"]} rad/s is above the '
-                   f'motor top speed {params.motor_speed_max:.5g} rad/s')
+        gains = PdGains(**values)
+        problem = unsafe_gains(params, gains, self._period)
+        if problem:
+            msg = f'{kind} gains: {problem}'
             raise ValueError(msg)
-        return PdGains(values['kp'], values['kd'], values['kff'], values['motor_speed_limit'])
+        return gains
+
+    def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
+        """Judge a change of gains; apply it where safe, refuse it with the reason otherwise."""
+        changes: dict[str, dict[str, float]] = {}
+        for parameter in parameters:
+            kind, _, key = parameter.name.partition('.')
+            if kind in self._params and key in GAIN_FIELDS:
+                changes.setdefault(kind, {})[GAIN_FIELDS[key]] = float(parameter.value)
+        accepted: dict[str, PdGains] = {}
+        for kind, values in changes.items():
+            current = next(loop.gains for joint, loop in self._loops.items()
+                           if joint_type_of(joint) == kind)
+            try:
+                gains = replace(current, **values)
+            except ValueError as exc:
+                return SetParametersResult(successful=False, reason=f'{kind} gains: {exc}')
+            problem = unsafe_gains(self._params[kind], gains, self._period)
+            if problem:
+                self.get_logger().warning(f'gain change refused: {kind}: {problem}')
+                return SetParametersResult(successful=False, reason=f'{kind} gains: {problem}')
+            accepted[kind] = gains
+        for kind, gains in accepted.items():
+            for joint, loop in self._loops.items():
+                if joint_type_of(joint) == kind:
+                    loop.gains = gains
+            self.get_logger().info(f'{kind} gains now kp {gains.kp:g}, kd {gains.kd:g}, '
+                                   f'kff {gains.kff:.5g}, limit {gains.speed_limit:.5g}')
+        return SetParametersResult(successful=True)
 
     def _now(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
@@ -149,7 +199,7 @@ class PdController(Node):
             for joint in self._loops:
                 self._publish(joint, 0.0, False)
         elif event.kind == SafetyEvent.KIND_STALE_REFERENCE and event.latched \
-                and not self._holding:
+                and event.phase != SafetyEvent.PHASE_CLEAR and not self._holding:
             self._holding = True
             for joint, loop in self._loops.items():
                 self._followers[joint].hold(loop.position)

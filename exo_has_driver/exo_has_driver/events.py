@@ -53,6 +53,19 @@ class Severity(IntEnum):
     FATAL = 3
 
 
+class Phase(IntEnum):
+    """Where a condition is in its life, numbered as SafetyEvent's ``PHASE_*``.
+
+    A condition is reported when it starts, when what it is changes while it lasts (a stroke
+    end reached at the other end, a second source whose publishers change), and when it has
+    cleared: not once per sample that shows it.
+    """
+
+    START = 0
+    CHANGE = 1
+    CLEAR = 2
+
+
 @dataclass(frozen=True)
 class Event:
     """A safety event, as exo_has_msgs/msg/SafetyEvent carries it (the stamp aside).
@@ -73,6 +86,8 @@ class Event:
         Whether the source holds a latched stop after this event.
     text : str
         Human-readable description.
+    phase : Phase
+        Whether the condition starts, changes or has cleared (RESET and refusals: START).
 
     """
 
@@ -83,6 +98,7 @@ class Event:
     limit: float
     latched: bool
     text: str
+    phase: Phase = Phase.START
 
 
 @dataclass(frozen=True)
@@ -137,12 +153,12 @@ class StopLatch:
         return self._cause
 
     def event(self, joint: str, kind: SafetyKind, severity: Severity, value: float,
-              limit: float, text: str) -> Event:
+              limit: float, text: str, phase: Phase = Phase.START) -> Event:
         """Return an event; a FATAL one latches the stop (the first is kept as its cause)."""
         if severity >= Severity.FATAL:
             self._latched = True
         made = Event(joint, SafetyKind(kind), Severity(severity), float(value), float(limit),
-                     self._latched, text)
+                     self._latched, text, Phase(phase))
         if severity >= Severity.FATAL and self._cause is None:
             self._cause = made
         return made

@@ -1,10 +1,13 @@
 """What the watchdog knows and judges of one joint: :class:`JointWatch`.
 
-Free of ROS. A :class:`JointWatch` takes one joint's states, commands, reference and the
-publishers on its topics, and reports each of its conditions once, when it arises, as an event
-of the watchdog's stop latch (the rules are listed in :mod:`exo_has_driver.safety`, which holds
-one per joint). It also lists the fatal conditions that still hold, which refuse a reset, and
-summarises the joint for diagnostic_msgs (:class:`JointDiagnostic`).
+Free of ROS. A :class:`JointWatch` takes one joint's states, commands, reference and the publishers
+on its topics, and reports each of its conditions as events of the watchdog's stop latch when it
+starts, when what it is changes while it lasts, and once it has cleared, not per sample (the rules
+are listed in :mod:`exo_has_driver.safety`, which holds one per joint). A condition clears when it
+has been absent for :data:`CLEAR_TIME`: one that comes and goes between samples (a second plant's
+states beside the real one's) stays one condition. It also lists the fatal conditions that hold on
+the newest sample (not after :data:`CLEAR_TIME`), which refuse a reset, and summarises the joint
+for diagnostic_msgs (:class:`JointDiagnostic`).
 """
 
 from __future__ import annotations
@@ -13,7 +16,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from exo_has_driver.events import Condition, Event, SafetyKind, Severity, StopLatch
+from exo_has_driver.events import Condition, Event, Phase, SafetyKind, Severity, StopLatch
 from exo_has_driver.safety_limits import SafetyLimits
 from exo_has_driver.second_source import second_source
 from exo_has_sim.errors import KinematicsError
@@ -33,6 +36,9 @@ END_STOP_TOLERANCE = 2e-3
 PRESSURE_HYSTERESIS = 0.05
 #: [m] Distance beyond the margin the position must leave an end by before another event.
 STROKE_HYSTERESIS = 0.5e-3
+#: [s] How long a reported condition must stay absent to be reported cleared (and be reported
+#: again should it return): fifty periods at 200 Hz.
+CLEAR_TIME = 0.25
 
 
 @dataclass(frozen=True)
@@ -105,14 +111,21 @@ class JointWatch:
         self.sources: dict[str, tuple[str, ...]] = {}
         # The second source as last reported.
         self.sources_reported: Condition | None = None
-        # Kinds whose condition holds and has been reported (the deduplication).
+        # Kinds whose condition holds now.
         self.active: set[SafetyKind] = set()
+        # Kinds reported and not cleared since, with what of each was seen (a stroke end's
+        # end) and when last [s], and since when each absent one has been absent [s].
+        self.reported: dict[SafetyKind, dict[object, float]] = {}
+        self.absent_since: dict[SafetyKind, float] = {}
+        # Kinds held without an event (an over-pressure beside an open valve): they clear
+        # silently too.
+        self.silent: set[SafetyKind] = set()
 
     def take_state(self, t: float, position: float, pressure_a: float, pressure_b: float,
                    valve_mode: int, *, holding: bool) -> list[Event]:
         """Take a HAS state received at t [s]; ``holding``: whether a hold is latched."""
         self.state_time = t
-        self.active.discard(SafetyKind.STALE_STATE)
+        self._lapse(t, SafetyKind.STALE_STATE)
         fault = _sensor_fault(self.limits, position, pressure_a, pressure_b, valve_mode)
         angle = None
         if fault is None:
@@ -124,12 +137,12 @@ class JointWatch:
         if fault is not None:
             self.angle = self.tracking_error = self.over_limit_since = None
             value, limit, what = fault
-            return self._once(SafetyKind.SENSOR_FAULT, Severity.FATAL, value, limit,
+            return self._once(t, SafetyKind.SENSOR_FAULT, Severity.FATAL, value, limit,
                               f'{self.joint}: sensor fault: {what}')
-        self.active.discard(SafetyKind.SENSOR_FAULT)
+        self._lapse(t, SafetyKind.SENSOR_FAULT)
         self.position, self.angle = position, angle
         self.pressure_a, self.pressure_b, self.valve_mode = pressure_a, pressure_b, valve_mode
-        return [*self._check_pressure(), *self._check_stroke(),
+        return [*self._check_pressure(t), *self._check_stroke(t),
                 *self._check_tracking(t, holding)]
 
     def take_command(self, t: float, motor_speed: float, enable: bool) -> list[Event]:
@@ -137,12 +150,13 @@ class JointWatch:
         if self.latch.latched:
             return []
         self.command_time = t
-        self.active.discard(SafetyKind.STALE_COMMAND)
+        self._lapse(t, SafetyKind.STALE_COMMAND)
         if not math.isfinite(motor_speed):
             self.enabled = False
-            return self._once(SafetyKind.INVALID_COMMAND, Severity.FATAL, motor_speed, math.nan,
+            return self._once(t, SafetyKind.INVALID_COMMAND, Severity.FATAL, motor_speed,
+                              math.nan,
                               f'{self.joint}: invalid command: motor speed {motor_speed}')
-        self.active.discard(SafetyKind.INVALID_COMMAND)
+        self._lapse(t, SafetyKind.INVALID_COMMAND)
         self.enabled = bool(enable)
         return []
 
@@ -167,17 +181,18 @@ class JointWatch:
         first = crowded[0]
         if self.sources_reported == first:
             return []
+        phase = Phase.START if self.sources_reported is None else Phase.CHANGE
         self.sources_reported = first
         self.active.add(SafetyKind.SECOND_SOURCE)
         return [self.latch.event(self.joint, SafetyKind.SECOND_SOURCE, Severity.FATAL,
-                                 first.value, first.limit, first.text)]
+                                 first.value, first.limit, first.text, phase)]
 
     def check_stale(self, t: float, commands: bool) -> list[Event]:
         """Check at t [s] for a stale state and, if ``commands``, a stale command."""
         age, limit, what = self.state_age(t)
-        events = []
+        events = self._cleared(t)
         if age > limit:
-            events += self._once(SafetyKind.STALE_STATE, Severity.FATAL, age, limit,
+            events += self._once(t, SafetyKind.STALE_STATE, Severity.FATAL, age, limit,
                                  f'{self.joint}: stale state: {what}')
         if not commands:
             return events
@@ -188,7 +203,7 @@ class JointWatch:
             age, limit = t - self.command_time, self.limits.command_timeout
             what = f'no command for {age:.3f} s (limit {limit:.3f} s)'
         if age > limit:
-            events += self._once(SafetyKind.STALE_COMMAND, Severity.FATAL, age, limit,
+            events += self._once(t, SafetyKind.STALE_COMMAND, Severity.FATAL, age, limit,
                                  f'{self.joint}: stale command: {what}')
         return events
 
@@ -221,12 +236,14 @@ class JointWatch:
         """
         self.tracking_from = t + self.limits.startup_grace
         self.over_limit_since = None
-        self.active.discard(SafetyKind.TRACKING_ERROR)
+        # The reset's event says these are over: they are forgotten, not reported cleared.
+        self._forget(SafetyKind.TRACKING_ERROR)
         if stopped:
             self.command_time = None
             self.command_epoch = t
             self.enabled = False
-            self.active -= {SafetyKind.STALE_COMMAND, SafetyKind.INVALID_COMMAND}
+            self._forget(SafetyKind.STALE_COMMAND)
+            self._forget(SafetyKind.INVALID_COMMAND)
 
     def state_age(self, t: float) -> tuple[float, float, str]:
         """Return the newest state's age [s], the limit it is held to [s], and a description."""
@@ -283,37 +300,87 @@ class JointWatch:
                  for topic, publishers in sorted(self.sources.items()))
         return [condition for condition in found if condition is not None]
 
-    def _once(self, kind: SafetyKind, severity: Severity, value: float, limit: float,
-              text: str) -> list[Event]:
-        """Report a condition when it arises; nothing while it persists."""
-        if kind in self.active:
-            return []
-        self.active.add(kind)
-        return [self.latch.event(self.joint, kind, severity, value, limit, text)]
+    def _once(self, t: float, kind: SafetyKind, severity: Severity, value: float, limit: float,
+              text: str, what: object = None) -> list[Event]:
+        """Report a condition that holds at t [s] when it starts or ``what`` it is changes.
 
-    def _check_pressure(self) -> list[Event]:
+        A change is reported when ``what`` was not seen within :data:`CLEAR_TIME`: two
+        variants that alternate (a second plant at one stroke end, the real one at the other)
+        are reported once each, not at every sample.
+        """
+        self.active.add(kind)
+        self.absent_since.pop(kind, None)
+        seen = self.reported.setdefault(kind, {})
+        for variant, last in list(seen.items()):
+            if t - last >= CLEAR_TIME:
+                del seen[variant]
+        # A fatal condition while nothing is latched latches, however recently it was seen.
+        if not seen or (severity >= Severity.FATAL and not self.latch.latched):
+            phase = Phase.START
+        elif what not in seen:
+            phase = Phase.CHANGE
+        else:
+            seen[what] = t
+            return []
+        seen[what] = t
+        self.silent.discard(kind)
+        return [self.latch.event(self.joint, kind, severity, value, limit, text, phase)]
+
+    def _lapse(self, t: float, kind: SafetyKind) -> None:
+        """Note that a condition does not hold at t [s]: it clears after :data:`CLEAR_TIME`."""
+        self.active.discard(kind)
+        if kind in self.reported:
+            self.absent_since.setdefault(kind, t)
+
+    def _forget(self, kind: SafetyKind) -> None:
+        """Forget a condition without an event: it is reported anew should it return."""
+        self.active.discard(kind)
+        self.reported.pop(kind, None)
+        self.absent_since.pop(kind, None)
+        self.silent.discard(kind)
+
+    def _cleared(self, t: float) -> list[Event]:
+        """Report the conditions absent for :data:`CLEAR_TIME` at t [s] as cleared."""
+        done = sorted(kind for kind, since in self.absent_since.items()
+                      if t - since >= CLEAR_TIME)
+        events = []
+        for kind in done:
+            del self.absent_since[kind], self.reported[kind]
+            if kind in self.silent:
+                self.silent.discard(kind)
+                continue
+            events.append(Event(self.joint, kind, Severity.INFO, math.nan, math.nan,
+                                self.latch.latched, f'{self.joint}: {kind.label} cleared',
+                                Phase.CLEAR))
+        return events
+
+    def _check_pressure(self, t: float) -> list[Event]:
         limits = self.limits
         pressure = max(self.pressure_a, self.pressure_b)
         chamber = 'A' if self.pressure_a >= self.pressure_b else 'B'
         if pressure >= limits.relief_pressure or self.valve_mode == ValveMode.RELIEF:
             events = self._once(
-                SafetyKind.SAFETY_VALVE_OPEN, Severity.FATAL, pressure, limits.relief_pressure,
+                t, SafetyKind.SAFETY_VALVE_OPEN, Severity.FATAL, pressure,
+                limits.relief_pressure,
                 f'{self.joint}: safety valve open: chamber {chamber} at {_mpa(pressure)}, relief '
                 f'setting {_mpa(limits.relief_pressure)}, valve mode {self.valve_mode}')
             # The valve event says more: no over-pressure warning beside it.
             self.active.add(SafetyKind.OVER_PRESSURE)
+            self.reported.setdefault(SafetyKind.OVER_PRESSURE, {})[None] = t
+            self.silent.add(SafetyKind.OVER_PRESSURE)
+            self.absent_since.pop(SafetyKind.OVER_PRESSURE, None)
             return events
-        self.active.discard(SafetyKind.SAFETY_VALVE_OPEN)
+        self._lapse(t, SafetyKind.SAFETY_VALVE_OPEN)
         if pressure > limits.warning_pressure:
             return self._once(
-                SafetyKind.OVER_PRESSURE, Severity.WARN, pressure, limits.warning_pressure,
+                t, SafetyKind.OVER_PRESSURE, Severity.WARN, pressure, limits.warning_pressure,
                 f'{self.joint}: over-pressure: chamber {chamber} at {_mpa(pressure)}, over the '
                 f'warning threshold {_mpa(limits.warning_pressure)}')
         if pressure < limits.warning_pressure * (1.0 - PRESSURE_HYSTERESIS):
-            self.active.discard(SafetyKind.OVER_PRESSURE)
+            self._lapse(t, SafetyKind.OVER_PRESSURE)
         return []
 
-    def _check_stroke(self) -> list[Event]:
+    def _check_stroke(self, t: float) -> list[Event]:
         limits = self.limits
         position = self.position
         if position <= limits.stroke_margin:
@@ -323,12 +390,12 @@ class JointWatch:
         else:
             away = limits.stroke_margin + STROKE_HYSTERESIS
             if away < position < limits.stroke - away:
-                self.active.discard(SafetyKind.STROKE_END)
+                self._lapse(t, SafetyKind.STROKE_END)
             return []
-        return self._once(SafetyKind.STROKE_END, Severity.ERROR, position, end,
+        return self._once(t, SafetyKind.STROKE_END, Severity.ERROR, position, end,
                           f'{self.joint}: stroke end: position {position * 1e3:.2f} mm within '
                           f'{limits.stroke_margin * 1e3:.2f} mm of the {name} end at '
-                          f'{end * 1e3:.1f} mm')
+                          f'{end * 1e3:.1f} mm', what=end)
 
     def _check_tracking(self, t: float, holding: bool) -> list[Event]:
         limits = self.limits
@@ -339,7 +406,7 @@ class JointWatch:
         self.tracking_error = error
         if abs(error) <= limits.tracking_error_limit:
             self.over_limit_since = None
-            self.active.discard(SafetyKind.TRACKING_ERROR)
+            self._lapse(t, SafetyKind.TRACKING_ERROR)
             return []
         # A disabled drive does not track (its valve is in free mode); neither does a stop,
         # a hold (the joint stays put while the reference moves on), nor a joint rejoining
@@ -352,7 +419,7 @@ class JointWatch:
         duration = t - self.over_limit_since
         if duration < limits.tracking_error_time:
             return []
-        return self._once(SafetyKind.TRACKING_ERROR, Severity.FATAL, abs(error),
+        return self._once(t, SafetyKind.TRACKING_ERROR, Severity.FATAL, abs(error),
                           limits.tracking_error_limit,
                           f'{self.joint}: tracking error {error:+.3f} rad '
                           f'({math.degrees(error):+.1f} deg) over '

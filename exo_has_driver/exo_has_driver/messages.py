@@ -17,7 +17,7 @@ def safety_event(event: Event, stamp_ns: int) -> SafetyEvent:
     """Return the SafetyEvent message of an event, stamped ``stamp_ns`` [ns]."""
     message = SafetyEvent(joint=event.joint, kind=event.kind, severity=event.severity,
                           value=event.value, limit=event.limit, latched=event.latched,
-                          text=event.text)
+                          text=event.text, phase=event.phase)
     set_stamp(message.header, stamp_ns)
     return message
 
