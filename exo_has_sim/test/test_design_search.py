@@ -112,10 +112,16 @@ def test_the_squat_moments_are_the_virtual_work_of_the_carried_load():
     assert_allclose(squat_moments(0.0, 0.0, mass), [0.0, 0.0], atol=1e-9)
 
 
-@pytest.mark.slow
-def test_the_shipped_files_carry_the_searched_design_which_beats_the_old_one():
+@pytest.fixture(scope='module')
+def shipped_search():
+    """Run the full search on the shipped files' joints once for the module (12 s here)."""
     joints = [load_parameters('hip'), load_parameters('knee')]
-    choices = search(joints)
+    return joints, search(joints)
+
+
+@pytest.mark.slow
+def test_the_shipped_files_carry_the_searched_design_which_beats_the_old_one(shipped_search):
+    joints, choices = shipped_search
     assert {c.design.bore for c in choices.values()} == {choices['hip'].design.bore}
     for params in joints:
         choice = choices[params.joint_type]
@@ -152,7 +158,17 @@ def test_requirements_no_design_can_meet_are_reported_missed_not_raised():
 
 
 @pytest.mark.slow
-def test_the_command_prints_the_margins_and_writes_the_feasible_region(tmp_path, capsys):
+def test_the_command_prints_the_margins_and_writes_the_feasible_region(tmp_path, capsys,
+                                                                     monkeypatch,
+                                                                     shipped_search):
+    joints, choices = shipped_search
+
+    def searched(given):
+        # The command searches the same two shipped joints: the module's search stands in.
+        assert given == joints
+        return choices
+
+    monkeypatch.setattr('exo_has_sim.design_check.search', searched)
     plot = tmp_path / 'region.png'
     assert main(['--joint', 'knee', '--search', '--plot', str(plot)]) == 0
     out = capsys.readouterr().out
