@@ -82,6 +82,7 @@ class PdController(Node):
         priority = declare_realtime_priority(self, 'the thread that answers the states')
         self._period = 1.0 / rate
         self._params: dict[str, HasParameters] = {}
+        self._gains: dict[str, PdGains] = {}  # by joint type, as the parameters are
         self._loops: dict[str, PositionLoop] = {}
         self._followers: dict[str, ReferenceFollower] = {}
         self._command_publishers = {}
@@ -89,8 +90,9 @@ class PdController(Node):
             kind = joint_type_of(joint)
             if kind not in self._params:
                 self._params[kind] = self._joint_type_parameters(kind)
+                self._gains[kind] = self._declare_gains(self._params[kind])
             params = self._params[kind]
-            self._loops[joint] = PositionLoop(self._gains(params))
+            self._loops[joint] = PositionLoop(self._gains[kind])
             self._followers[joint] = ReferenceFollower(joint, params, timeout, rejoin_speed)
             self._command_publishers[joint] = self.create_publisher(
                 HasCommand, has_command_topic(joint), qos_profile_sensor_data)
@@ -120,8 +122,8 @@ class PdController(Node):
             self, f'{kind}.params', kind,
             f'{kind} HAS parameter set (linkage, motor limit): {kind} or a parameters YAML file'))
 
-    def _gains(self, params: HasParameters) -> PdGains:
-        """Declare (once) and read the gains of a joint type."""
+    def _declare_gains(self, params: HasParameters) -> PdGains:
+        """Declare and read the gains of a joint type; refuse them where unsafe."""
         kind = params.joint_type
         paper = PdGains.paper(params)
         specs = (
@@ -152,10 +154,8 @@ class PdController(Node):
                 changes.setdefault(kind, {})[GAIN_FIELDS[key]] = float(parameter.value)
         accepted: dict[str, PdGains] = {}
         for kind, values in changes.items():
-            current = next(loop.gains for joint, loop in self._loops.items()
-                           if joint_type_of(joint) == kind)
             try:
-                gains = replace(current, **values)
+                gains = replace(self._gains[kind], **values)
             except ValueError as exc:
                 return SetParametersResult(successful=False, reason=f'{kind} gains: {exc}')
             problem = unsafe_gains(self._params[kind], gains, self._period)
@@ -164,6 +164,7 @@ class PdController(Node):
                 return SetParametersResult(successful=False, reason=f'{kind} gains: {problem}')
             accepted[kind] = gains
         for kind, gains in accepted.items():
+            self._gains[kind] = gains
             for joint, loop in self._loops.items():
                 if joint_type_of(joint) == kind:
                     loop.gains = gains
