@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import random
 from collections.abc import Iterator
+from typing import Any
 
 import pytest
 
@@ -54,3 +55,36 @@ def virtual_hosts_available() -> None:
         if os.environ.get('CI'):
             raise
         pytest.skip(str(exc))
+
+
+#: The acceptance modules of the diagnosis that queue their diagnoses in one pool, in the order
+#: they queue them: the longest diagnoses first (a position-only record of the third plant,
+#: the position-only dead zone and relief valve), the first plant's short draws last.
+DIAGNOSIS_MODULES = ('test_third_truth_plant_diagnosis', 'test_hidden_effects_position_only',
+                     'test_detection_limits', 'test_hidden_effects')
+
+
+@pytest.fixture(scope='session')
+def diagnoses(request: pytest.FixtureRequest,
+              tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """Run the diagnoses of the acceptance modules collected in one pool; each module's by name.
+
+    Each module queues its own (``queue_diagnoses(pool, folder)``, giving its
+    ``diagnosis_runs.Queued``). With a pool per module, one core idled while the other ended
+    each module's last diagnosis, and test_detection_limits.py diagnosed its first record
+    alone before its pool started; here both run beside the other modules' diagnoses. All have
+    ended on return, before any process test starts.
+    """
+    from diagnosis_runs import diagnosis_pool  # test/ is on the path once its modules are
+
+    modules = {item.module.__name__: item.module for item in request.session.items
+               if hasattr(getattr(item, 'module', None), 'queue_diagnoses')}
+    order = sorted(modules, key=lambda name: DIAGNOSIS_MODULES.index(name)
+                   if name in DIAGNOSIS_MODULES else len(DIAGNOSIS_MODULES))
+    queued = {}
+    with diagnosis_pool() as pool:
+        for name in order:
+            queued[name] = modules[name].queue_diagnoses(pool, tmp_path_factory.mktemp(name))
+        for each in queued.values():
+            each.wait()
+    return queued

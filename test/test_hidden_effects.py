@@ -22,19 +22,19 @@ from a second-order motor loop. A table of every draw is printed (``pytest -s``)
 
 from __future__ import annotations
 
-import multiprocessing
-import os
 import time
 
 import pytest
 import second_truth_plant as sp
 import truth_plant as tp
-from diagnosis_runs import diagnose_csv
+from diagnosis_runs import Queued, diagnose_csv
 
 #: (plant, draws, first seed): the effects take turns over each plant's draws.
 PLANTS = ((tp, 14, 5000), (sp, 7, 6000))
 SIZE_TOLERANCE = 0.25
 FIRST_SEED = PLANTS[0][2]
+#: Two effects at once, on one draw of the first plant.
+TWO_EFFECTS = {'coulomb_friction': 80.0, 'transport_delay': 0.008}
 
 
 def run_draw(task):
@@ -50,17 +50,39 @@ def run_draw(task):
             'wall': time.perf_counter() - started}
 
 
-@pytest.fixture(scope='module')
-def results(tmp_path_factory):
-    folder = tmp_path_factory.mktemp('hidden')
+def run_two_effects(folder):
+    """Simulate a draw of the first plant with two effects at once, diagnose it.
+
+    Return the effects simulated and the JSON document.
+    """
+    base = tp.draw(FIRST_SEED + 100, 'hip', effect='none', excitation='sine_sum')
+    run = tp.simulate(tp.plant_parameters(base), TWO_EFFECTS,
+                      reference=base.clean['reference'], load_force=base.clean['load_force'],
+                      noise=base.noise, seed=base.seed)
+    path = folder / 'two.csv'
+    header = ','.join(tp.COLUMNS)
+    rows = zip(*(run.noisy[name] for name in tp.COLUMNS), strict=True)
+    path.write_text(header + '\n' + '\n'.join(','.join(f'{v:.17g}' for v in row)
+                                              for row in rows) + '\n')
+    return run.effects, diagnose_csv(path, 'hip', base.load_mass, folder / 'two.json')
+
+
+def queue_diagnoses(pool, folder):
+    """Queue the record with two effects and the draws in the run's pool (conftest.py).
+
+    Each test takes its own result, and fails on its own where that raised.
+    """
     # The second plant's draws first: they take the longest (up to 50 s each), and the
     # processes then end on short ones together.
     tasks = [(plant.__name__, first_seed + i, tp.EFFECT_CHOICES[i % len(tp.EFFECT_CHOICES)],
               folder) for plant, draws, first_seed in reversed(PLANTS) for i in range(draws)]
-    # The draws are independent: one process per CPU. Spawned, not forked: the test process
-    # may hold rclpy's threads from earlier tests, and a fork copies their locks mid-use.
-    with multiprocessing.get_context('spawn').Pool(os.cpu_count() or 1) as pool:
-        rows = pool.map(run_draw, tasks, chunksize=1)
+    return Queued(folder, two=pool.apply_async(run_two_effects, (folder,)),
+                  draws=pool.map_async(run_draw, tasks, chunksize=1))
+
+
+@pytest.fixture(scope='module')
+def results(diagnoses):
+    rows = diagnoses[__name__]['draws'].get()
     print_table(rows)
     return rows
 
@@ -153,17 +175,8 @@ def _size_name(effect):
 
 
 @pytest.mark.slow
-def test_two_effects_at_once_are_both_found_named_or_reported_beside_their_rival(tmp_path):
-    base = tp.draw(FIRST_SEED + 100, 'hip', effect='none', excitation='sine_sum')
-    effects = {'coulomb_friction': 80.0, 'transport_delay': 0.008}
-    run = tp.simulate(tp.plant_parameters(base), effects, reference=base.clean['reference'],
-                      load_force=base.clean['load_force'], noise=base.noise, seed=base.seed)
-    path = tmp_path / 'two.csv'
-    header = ','.join(tp.COLUMNS)
-    rows = zip(*(run.noisy[name] for name in tp.COLUMNS), strict=True)
-    path.write_text(header + '\n' + '\n'.join(','.join(f'{v:.17g}' for v in row)
-                                              for row in rows) + '\n')
-    doc = diagnose_csv(path, 'hip', base.load_mass, tmp_path / 'two.json')
+def test_two_effects_at_once_are_both_found_named_or_reported_beside_their_rival(diagnoses):
+    effects, doc = diagnoses[__name__]['two'].get()
     # The delay ties with a second-order motor loop in these data (issue 12): a verdict may
     # take the loop and report the delay beside it as indistinguishable, but never drop it.
     assert doc['causes'][0] == 'coulomb_friction'
@@ -173,5 +186,5 @@ def test_two_effects_at_once_are_both_found_named_or_reported_beside_their_rival
     else:
         assert doc['causes'] == ['coulomb_friction', 'transport_delay']
     for effect in doc['causes']:
-        assert abs(doc['sizes'][effect] / run.effects[effect] - 1.0) <= SIZE_TOLERANCE, effect
+        assert abs(doc['sizes'][effect] / effects[effect] - 1.0) <= SIZE_TOLERANCE, effect
     assert doc['fit_extended'] > doc['fit_baseline']

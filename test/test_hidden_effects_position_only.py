@@ -28,13 +28,12 @@ detection limit is stated without a pressure signal (none was measured there): a
 from __future__ import annotations
 
 import json
-import multiprocessing
-import os
 
 import numpy as np
 import pytest
 import second_truth_plant as sp
 import truth_plant as tp
+from diagnosis_runs import Queued
 from rigs import rig_file
 
 from exo_has_sim.diagnosis.cli import main
@@ -77,13 +76,15 @@ def run_draw(task):
             'doc': json.loads(out.read_text())}
 
 
-@pytest.fixture(scope='module')
-def results(tmp_path_factory):
-    folder = tmp_path_factory.mktemp('position_only')
+def queue_diagnoses(pool, folder):
+    """Queue the draws in the run's pool (conftest.py)."""
     tasks = [(plant.__name__, seed, effect, folder) for plant, seed, effect in DRAWS]
-    # Spawned, not forked: the test process may hold rclpy's threads from earlier tests.
-    with multiprocessing.get_context('spawn').Pool(os.cpu_count() or 1) as pool:
-        rows = pool.map(run_draw, tasks, chunksize=1)
+    return Queued(folder, draws=pool.map_async(run_draw, tasks, chunksize=1))
+
+
+@pytest.fixture(scope='module')
+def results(diagnoses):
+    rows = diagnoses[__name__]['draws'].get()
     for row in rows:
         print(f'{row["seed"]} {row["effect"]:<18} named {row["doc"]["causes"]} '
               f'{row["doc"]["sizes"]}')

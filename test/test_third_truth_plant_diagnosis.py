@@ -27,12 +27,12 @@ from __future__ import annotations
 
 import json
 import math
-import multiprocessing
 import os
 
 import pytest
 import third_rig
 import third_truth_plant as rig
+from diagnosis_runs import Queued
 
 from exo_has_sim.diagnosis.cli import STRUCTURE_STATUS, main
 
@@ -76,39 +76,33 @@ def diagnose_draw(task):
         return draw, code, json.load(handle)
 
 
-def run(tasks):
-    # One process per core, each integrating on one thread; spawned, as the other acceptance
-    # tests do, since this process may hold rclpy's threads.
-    os.environ['EXO_HAS_THREADS'] = '1'
-    with multiprocessing.get_context('spawn').Pool(os.cpu_count() or 1) as pool:
-        return pool.map(diagnose_draw, tasks, chunksize=1)
-
-
-@pytest.fixture(scope='module')
-def diagnoses_folder(tmp_path_factory):
-    return tmp_path_factory.mktemp('third_plant')
-
-
-@pytest.fixture(scope='module')
-def diagnoses(diagnoses_folder):
-    folder = str(diagnoses_folder)
-    tasks = [(seed, effect, columns, 'paper', folder)
+def queue_diagnoses(pool, folder):
+    """Queue the draws of both descriptions in the run's pool (conftest.py)."""
+    tasks = [(seed, effect, columns, 'paper', str(folder))
              for seed, effect, columns in PAPER_CIRCUIT_DRAWS]
-    tasks += [(seed, effect, columns, 'switched', folder)
+    tasks += [(seed, effect, columns, 'switched', str(folder))
               for seed, effect, columns in RIGHT_CIRCUIT_DRAWS]
-    done = run(tasks)
-    return {'paper': done[:len(PAPER_CIRCUIT_DRAWS)],
-            'switched': done[len(PAPER_CIRCUIT_DRAWS):]}
+    return Queued(folder, draws=pool.map_async(diagnose_draw, tasks, chunksize=1))
 
 
 @pytest.fixture(scope='module')
-def paper_circuit(diagnoses):
-    return diagnoses['paper']
+def diagnoses_folder(diagnoses):
+    return diagnoses[__name__].folder
 
 
 @pytest.fixture(scope='module')
-def right_circuit(diagnoses):
-    return diagnoses['switched']
+def done(diagnoses):
+    return diagnoses[__name__]['draws'].get()
+
+
+@pytest.fixture(scope='module')
+def paper_circuit(done):
+    return done[:len(PAPER_CIRCUIT_DRAWS)]
+
+
+@pytest.fixture(scope='module')
+def right_circuit(done):
+    return done[len(PAPER_CIRCUIT_DRAWS):]
 
 
 def logged(doc):
