@@ -5,6 +5,10 @@
 - A second plant started by hand on a running session's joint is a FATAL safety event that
   names both publishers, and every joint is commanded to stop.
 - A demo started while another runs on the same domain refuses, naming what it found.
+- The main job, ``exo-has demo``, as the README runs it: a session, its bag and its report,
+  the report's path its last line. Checked on the first demo of the case above, which runs
+  that job to its end: ``demo.main`` and ``demo.run`` take the same steps for any durations
+  and domain (census, session, stop, report, exit status), so a demo of its own ran them twice.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -42,12 +47,15 @@ DISCOVERY_ALLOWANCE = 2.0
 
 
 def start_demo(folder: Path, durations: tuple[float, float] = (30.0, 5.0),
-               env: dict[str, str] | None = None) -> subprocess.Popen:
+               env: dict[str, str] | None = None, errors: Path | None = None
+               ) -> subprocess.Popen:
+    """Start ``exo-has demo``, its output to ``demo.log`` (its errors too unless ``errors``)."""
     log = (folder / 'demo.log').open('wb')
     return subprocess.Popen(
         [sys.executable, '-m', 'exo_has_runtime.cli', 'demo', '--durations',
          *map(str, durations), '--output', str(folder)],
-        stdout=log, stderr=subprocess.STDOUT, cwd=folder, env={**os.environ, **(env or {})},
+        stdout=log, stderr=errors.open('wb') if errors else subprocess.STDOUT, cwd=folder,
+        env={**os.environ, **(env or {})},
         # A shell's background job inherits SIGINT ignored, and Python then raises no
         # KeyboardInterrupt: the tests send SIGINT, so the demo must not inherit that.
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
@@ -166,37 +174,72 @@ def test_a_second_plant_on_a_running_session_is_fatal_names_both_and_stops_every
     assert final_stop(data.events) == min(fatal, key=lambda e: e.t)
 
 
-def test_a_demo_started_beside_a_running_one_refuses_naming_the_nodes_it_found(tmp_path):
-    first_folder, second_folder = tmp_path / 'first', tmp_path / 'second'
-    first_folder.mkdir()
-    second_folder.mkdir()
+@dataclass
+class Beside:
+    """A demo run to its end, and a second one started beside it on its domain."""
+
+    first: Path  # the first demo's output folder
+    code: int  # its exit status
+    stdout: str
+    stderr: str
+    second: subprocess.CompletedProcess[str]
+    second_folder: Path
+
+
+@pytest.fixture(scope='module')
+def beside(tmp_path_factory) -> Beside:
+    first_folder = tmp_path_factory.mktemp('first')
+    second_folder = tmp_path_factory.mktemp('second')
     # A domain of this test's own: a node killed earlier in the run lingers in discovery on
     # the run's domain until its lease ends, and the first demo would rightly refuse it.
     env = {'ROS_DOMAIN_ID': str(201 + int(os.environ['ROS_DOMAIN_ID']) % 31)}
-    first = start_demo(first_folder, (6.0, 3.0), env)
+    # Its errors apart: the last line of its output proper is the report's path.
+    first = start_demo(first_folder, (6.0, 3.0), env, errors=first_folder / 'demo.err')
     try:
         wait_for_line(first_folder / 'demo.log', r'trial 1/2: walk', first)
         second = subprocess.run(
             [sys.executable, '-m', 'exo_has_runtime.cli', 'demo', '--output',
              str(second_folder)], capture_output=True, text=True, timeout=120, cwd=second_folder,
             env={**os.environ, **env})
-        assert first.wait(timeout=120) == 0, (first_folder / 'demo.log').read_text()
+        code = first.wait(timeout=120)
     finally:
         if first.poll() is None:
             first.kill()
             first.wait()
+    return Beside(first_folder, code, (first_folder / 'demo.log').read_text(),
+                  (first_folder / 'demo.err').read_text(), second, second_folder)
+
+
+def test_the_demo_records_a_session_and_ends_with_the_path_of_its_report(beside):
+    output = beside.stdout + beside.stderr
+    assert beside.code == 0, output
+    report = Path(beside.stdout.rstrip().splitlines()[-1])
+    assert report.name == 'report.md' and report.is_file(), output
+    assert 'trial 2/2: squat' in output  # progress was shown
+    text = report.read_text()
+    assert '| right_knee | 2 squat |' in text and '## Safety events' in text
+    bag = report.parent.parent / 'bag'
+    summary = bag_summary(bag)
+    topics = {topic.topic for topic in summary.topics}
+    assert {'/joint_reference', '/left_hip/has_state', '/right_knee/has_command'} <= topics
+
+
+def test_a_demo_started_beside_a_running_one_refuses_naming_the_nodes_it_found(beside):
+    second = beside.second
+    assert beside.code == 0, beside.stdout + beside.stderr
     assert second.returncode == 1, second.stdout + second.stderr
     assert 'not started: ROS domain' in second.stderr, second.stderr
     assert re.search(r'already has nodes of a session: (/\w+(, )?)+', second.stderr)
     assert 'Traceback' not in second.stderr
-    assert not list(second_folder.glob('demo_*/bag')), 'the refused demo started a recording'
+    assert not list(beside.second_folder.glob('demo_*/bag')), \
+        'the refused demo started a recording'
     # The first session went on undisturbed by the second: nothing of it on its topics (no
     # second source), no stop. Its report is there. (A stroke-end ERROR may come from the CPU
     # the refused demo took while it started: the knee stands 2 mm from its end and overshoots
     # when commands come late, bench/README.md, the demo series; that is load, not crosstalk.)
-    (report,) = first_folder.glob('demo_*/report/report.md')
+    (report,) = beside.first.glob('demo_*/report/report.md')
     assert '| `/joint_reference` |' in report.read_text()
-    (bag,) = first_folder.glob('demo_*/bag')
+    (bag,) = beside.first.glob('demo_*/bag')
     events = read_session(bag).events
     assert [e.text for e in events if e.severity >= SafetyEvent.SEVERITY_FATAL
             or e.kind == SafetyEvent.KIND_SECOND_SOURCE] == []
