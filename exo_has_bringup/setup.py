@@ -21,6 +21,10 @@ setup(
     license='Apache-2.0',
     tests_require=['pytest'],
     entry_points={
+        'console_scripts': [
+            'robot_loop = exo_has_bringup.robot_main:main',
+            'robot_bridge = exo_has_bringup.robot_bridge:main',
+        ],
         'exo_has.commands': [
             'demo = exo_has_bringup.demo:main',
         ],

@@ -36,7 +36,8 @@ ROS = ('rclpy', 'rcl_interfaces', 'std_msgs', 'sensor_msgs', 'diagnostic_msgs',
 #: The modules of the ROS-free packages' layers that face ROS: nodes and message conversions.
 ROS_FACING = {
     'exo_has_sim': {'exo_has_sim.plant_node', 'exo_has_sim.state_message'},
-    'exo_has_control': {'exo_has_control.pd_controller', 'exo_has_control.gait_publisher'},
+    'exo_has_control': {'exo_has_control.pd_controller', 'exo_has_control.gait_publisher',
+                        'exo_has_control.gain_parameters'},
     'exo_has_driver': {'exo_has_driver.watchdog', 'exo_has_driver.driver_node',
                        'exo_has_driver.messages'},
 }

@@ -80,7 +80,8 @@ def console_scripts(package):
 
 #: The packages with executables (nodes, exo-has); exo_has_common and exo_has_bringup have none:
 #: bringup's demo is an exo-has subcommand.
-WITH_EXECUTABLES = ('exo_has_runtime', 'exo_has_sim', 'exo_has_control', 'exo_has_driver')
+WITH_EXECUTABLES = ('exo_has_runtime', 'exo_has_sim', 'exo_has_control', 'exo_has_driver',
+                    'exo_has_bringup')
 
 
 def test_only_the_packages_with_executables_declare_console_scripts():

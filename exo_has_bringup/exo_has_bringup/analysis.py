@@ -213,7 +213,8 @@ def tracking(data: SessionData, segments: Sequence[tuple[str, float, float]],
     The reference is interpolated at the state stamps. A window with no state is skipped.
     ``params``: each joint's parameter set (default: the shipped ones), whose linkage gives
     the angles and whose motor speed limit ``saturated`` counts the controller's commands at,
-    within a part in a million.
+    within a part in a million (where no command was recorded, as on the robot side whose loop
+    commands the bus itself, the commands the states say the drives took).
     """
     chosen = joint_parameters() if params is None else params
     links = linkages(chosen)
@@ -226,9 +227,11 @@ def tracking(data: SessionData, segments: Sequence[tuple[str, float, float]],
         ref = np.interp(t, data.reference_t, data.reference[:, index])
         x = data.states[joint]['position']
         x_ref = np.asarray(links[joint].position(ref, check=False), dtype=float)
-        command = data.commands.get(joint, {})
-        command_t = command.get('t', np.zeros(0))
-        at_limit = np.abs(command.get('motor_speed', np.zeros(0))) >= limits[joint] * (1 - 1e-6)
+        if joint in data.commands:
+            command_t, speed = data.commands[joint]['t'], data.commands[joint]['motor_speed']
+        else:
+            command_t, speed = t, data.states[joint]['motor_speed_command']
+        at_limit = np.abs(speed) >= limits[joint] * (1 - 1e-6)
         for name, start, end in segments:
             inside = (t >= data.start + start) & (t < data.start + end)
             if not np.any(inside):

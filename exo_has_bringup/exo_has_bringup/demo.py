@@ -2,7 +2,8 @@
 
 Four HAS plants (or, with ``--hardware can``, the hardware driver in front of simulated CAN
 drives and sensor boards), the PD controller, the gait publisher, the safety watchdog and the
-recorder run as processes (no launch file; the four plants share one, see
+recorder run as processes (with ``--hardware robot``, the robot loop and its bridge in place
+of the driver, the controller and the watchdog) (no launch file; the four plants share one, see
 :data:`exo_has_bringup.plan.COMPOSITION`) for about 20 s; the bag goes under
 ``bags/`` and a Markdown report with PNG plots next to it. The last line printed is the
 report's path. Exit status: 0; :data:`STOPPED` when the session ended in a FATAL stop (still
@@ -23,7 +24,7 @@ from pathlib import Path
 
 from exo_has_bringup.analysis import RecordedEvent, final_stop, read_session
 from exo_has_bringup.errors import DomainInUseError, HostsUnavailableError
-from exo_has_bringup.plan import SessionConfig
+from exo_has_bringup.plan import HARDWARE, SessionConfig
 from exo_has_bringup.report import write_report
 from exo_has_bringup.runner import (
     Session,
@@ -118,8 +119,9 @@ def run(config: SessionConfig, folder: Path, faults: LinkFaults | None = None) -
     """Run a session into folder, write its report; return how it ended."""
     trials = ', '.join(f'{m} {d:g} s'
                        for m, d in zip(config.motions, config.durations, strict=True))
-    joints = ('the hardware driver on simulated CAN devices' if config.hardware == 'can'
-              else 'four plant nodes')
+    joints = {'can': 'the hardware driver on simulated CAN devices',
+              'robot': 'the robot loop and its bridge on simulated CAN devices'}.get(
+                  config.hardware, 'four plant nodes')
     print(f'exo-has demo: {trials} at {config.rate:g} Hz, {joints}, into {folder}', flush=True)
     print(f'plant model ready in {warm_up():.1f} s (compiled once, then cached)', flush=True)
     refuse_if_occupied(config)
@@ -155,10 +157,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="plant and reference rate in Hz (200, the paper's)")
     parser.add_argument('--output', type=Path, default=Path('bags'),
                         help='folder for the session folder (bags/)')
-    parser.add_argument('--hardware', choices=['plants', 'can'], default='plants',
-                        help='what moves the joints: plant nodes (plants), or the hardware '
-                             'driver on a simulated CAN bus with simulated drives and sensor '
-                             'boards (can)')
+    parser.add_argument('--hardware', choices=HARDWARE, default='plants',
+                        help='what moves the joints: plant nodes (plants); the hardware '
+                             'driver, the PD controller and the watchdog on a simulated CAN bus '
+                             'with simulated drives and sensor boards (can); or the robot loop '
+                             'and its bridge on the same bus (robot)')
     parser.add_argument('--hosts', type=int, choices=[1, 2], default=1,
                         help='2: the robot side (joints, controller, watchdog, a recorder) and '
                              "the operator's (gait publisher, recorder) on two virtual hosts "

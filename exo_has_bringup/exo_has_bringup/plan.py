@@ -9,6 +9,7 @@ process: :mod:`exo_has_bringup.runner` runs a plan, and the tests check plans al
 
 from __future__ import annotations
 
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -33,8 +34,9 @@ from exo_has_runtime.container import ComponentSpec
 COMPOSITION: dict[str, tuple[str, ...]] = {
     'plants': tuple(f'{joint}_plant' for joint in JOINT_NAMES)}
 
-#: What moves the joints: plant nodes, or simulated CAN devices behind the hardware driver.
-HARDWARE = ('plants', 'can')
+#: What moves the joints: plant nodes; simulated CAN devices behind the hardware driver, the
+#: PD controller and the watchdog; or the same devices behind the robot loop and its bridge.
+HARDWARE = ('plants', 'can', 'robot')
 
 #: Nodes that ``SessionConfig.node_arguments`` may give extra ROS arguments to.
 CONFIGURABLE_NODES = ('recorder', 'pd_controller', 'watchdog', 'gait_publisher')
@@ -42,12 +44,17 @@ CONFIGURABLE_NODES = ('recorder', 'pd_controller', 'watchdog', 'gait_publisher')
 
 
 
-def recorded_topics(with_loads: bool = False) -> list[str]:
-    """Absolute names of the topics a session records."""
+def recorded_topics(with_loads: bool = False, commands: bool = True) -> list[str]:
+    """Absolute names of the topics a session records.
+
+    ``commands``: whether the joints are commanded over topics (not on the robot side, whose
+    loop commands the bus itself; each state carries the speed the drive was commanded).
+    """
     topics = [f'/{JOINT_REFERENCE_TOPIC}', f'/{GAIT_PHASE_TOPIC}', f'/{SAFETY_EVENT_TOPIC}',
               DIAGNOSTICS_TOPIC]
     for joint in JOINT_NAMES:
-        topics += [f'/{has_command_topic(joint)}', f'/{has_state_topic(joint)}']
+        topics += [f'/{has_command_topic(joint)}'] if commands else []
+        topics.append(f'/{has_state_topic(joint)}')
         if with_loads:
             topics.append(f'/{load_force_topic(joint)}')
     return topics
@@ -156,15 +163,30 @@ class SessionConfig:
         ``'plants'``: one plant node per joint. ``'can'``: the hardware driver on a simulated
         CAN bus (python-can's udp_multicast) with the simulated drives and sensor boards of
         every joint in one process (``exo_has_driver.devices``), as on the robot.
+        ``'robot'``: the same devices behind the robot loop (:mod:`.robot_main`: bus, safety
+        rules and PD law in one real-time thread, no ROS) and its bridge
+        (:mod:`.robot_bridge`), which take the places of the driver, the controller and the
+        watchdog (the controller's node arguments, its gains, go to the bridge).
     can_channel : str
         Multicast group of the simulated CAN bus; empty: a random one per session, so that
         sessions on one machine do not share a bus.
+    robot_cpus : str
+        CPUs (as ``taskset -c`` takes them: ``1``, ``2-3``) that the robot loop and the
+        simulated devices keep to (``hardware='robot'``; the devices also with ``'can'``),
+        as a robot PC gives its loop an isolated core: the rest of the session should be kept
+        off them (bench/closed_loop.py keeps itself, and so what it starts, on the others).
+        Empty: any.
+    can_bitrate : int
+        Bit rate [bit/s] at which the CANopen master judges the bus load of its SYNC period
+        (a udp_multicast bus has none of its own): 1 Mbit/s, classic CAN's top, carries the
+        four joints up to about 370 Hz; a faster loop needs CAN FD or a bus per joint.
     realtime_priority : int
-        SCHED_FIFO priority of the plants' loops, or of the driver's I/O thread and the
-        simulated CAN devices (0: the default scheduler; see exo_has_common.realtime). Not
-        the controller's: beside the CAN test's observer, a controller under SCHED_FIFO held
-        off the driver's state publication (bench/README.md, "The controller under
-        SCHED_FIFO"); ``node_arguments`` can set its ``realtime_priority``.
+        SCHED_FIFO priority of the plants' loops, or of the driver's I/O thread or the robot
+        loop (0: the default scheduler; see exo_has_common.realtime). The simulated CAN devices
+        run one level under it (:func:`devices_priority`). Not the controller's: beside the CAN
+        test's observer, a controller under SCHED_FIFO held off the driver's state publication
+        (bench/README.md, "The controller under SCHED_FIFO"); ``node_arguments`` can set its
+        ``realtime_priority``.
     hosts : int
         1: every node on this machine. 2: the robot side (joints, controller, watchdog and a
         recorder of its own, ``robot_recorder``) and the operator side (gait publisher and
@@ -192,6 +214,8 @@ class SessionConfig:
     load_mass: dict[str, float] = field(default_factory=lambda: {'hip': 50.0, 'knee': 25.0})
     hardware: str = 'plants'
     can_channel: str = ''
+    can_bitrate: int = 1_000_000
+    robot_cpus: str = ''
     realtime_priority: int = 0
     composition: dict[str, tuple[str, ...]] | None = None
     hosts: int = 1
@@ -225,7 +249,8 @@ def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
     # One host: everything runs here, on the robot PC as it were.
     operator = OPERATOR if config.hosts == 2 else ROBOT
     if config.record and bag is not None:
-        topics = ','.join(f"'{t}'" for t in recorded_topics(config.loads))
+        topics = ','.join(f"'{t}'" for t in recorded_topics(
+            config.loads, commands=config.hardware != 'robot'))
 
         def recorder(name: str, output: Path, extra: tuple[str, ...], host: str) -> NodeSpec:
             return NodeSpec(name, 'exo_has_runtime.recorder', (
@@ -237,17 +262,23 @@ def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
         if config.hosts == 2:
             # The robot keeps its own record: a partition costs the operator's bag, not this.
             specs.append(recorder('robot_recorder', robot_bag_of(bag), (), ROBOT))
-    if config.hardware == 'can':
+    if config.hardware in ('can', 'robot'):
         channel = config.can_channel or random_multicast_group()
         specs.append(NodeSpec('can_devices', 'exo_has_driver.devices.main', (
             '--interface', 'udp_multicast', '--channel', channel,
             '--load-mass-hip', f'{config.load_mass["hip"]}',
             '--load-mass-knee', f'{config.load_mass["knee"]}',
-            '--realtime-priority', f'{config.realtime_priority}'), ready=r'can devices ready',
+            '--realtime-priority', f'{devices_priority(config.realtime_priority)}',
+            *(('--cpus', config.robot_cpus) if config.robot_cpus else ())),
+            ready=r'can devices ready',
             stdin=True))
+    if config.hardware == 'robot':
+        specs += robot_side(config, channel)
+    elif config.hardware == 'can':
         specs.append(NodeSpec('driver', 'exo_has_driver.driver_node', (
             '--ros-args', '-p', 'interface:=udp_multicast', '-p', f'channel:={channel}',
-            '-p', f'rate:={config.rate}', '-p', f'realtime_priority:={config.realtime_priority}'),
+            '-p', f'rate:={config.rate}', '-p', f'bitrate:={config.can_bitrate}',
+            '-p', f'realtime_priority:={config.realtime_priority}'),
             ready=r'driver ready', stage=2, node_class='exo_has_driver.driver_node:Driver'))
     else:
         for joint in JOINT_NAMES:
@@ -263,19 +294,22 @@ def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
     # The controller and the watchdog take the plants' parameters files (linkage, stroke).
     files = tuple(token for kind, path in sorted(config.params.items())
                   for token in ('-p', f'{kind}.params:={path}'))
-    controller = ('-p', f'rate:={config.rate}', *files,
-                  *config.node_arguments.get('pd_controller', ()))
-    specs.append(NodeSpec('pd_controller', 'exo_has_control.pd_controller',
-                          ('--ros-args', *controller),
-                          ready=r'controller ready',
-                          node_class='exo_has_control.pd_controller:PdController'))
-    specs.append(NodeSpec('watchdog', 'exo_has_driver.watchdog', (
-        '--ros-args', '-p', f'rate:={config.rate}', '-p', f'control_rate:={config.rate}',
-        '-p', f'stale_periods:={config.stale_periods}',
-        *files, *config.node_arguments.get('watchdog', ())), stage=3,
-        node_class='exo_has_driver.watchdog:WatchdogNode'))
-    # The controller, the watchdog and the recorders take the references.
-    reference_readers = 2 + int(config.record and bag is not None) * config.hosts
+    if config.hardware != 'robot':
+        controller = ('-p', f'rate:={config.rate}', *files,
+                      *config.node_arguments.get('pd_controller', ()))
+        specs.append(NodeSpec('pd_controller', 'exo_has_control.pd_controller',
+                              ('--ros-args', *controller),
+                              ready=r'controller ready',
+                              node_class='exo_has_control.pd_controller:PdController'))
+        specs.append(NodeSpec('watchdog', 'exo_has_driver.watchdog', (
+            '--ros-args', '-p', f'rate:={config.rate}', '-p', f'control_rate:={config.rate}',
+            '-p', f'stale_periods:={config.stale_periods}',
+            *files, *config.node_arguments.get('watchdog', ())), stage=3,
+            node_class='exo_has_driver.watchdog:WatchdogNode'))
+    # The controller and the watchdog (or the robot loop's bridge) and the recorders take the
+    # references.
+    reference_readers = (1 if config.hardware == 'robot' else 2) \
+        + int(config.record and bag is not None) * config.hosts
     motions = ','.join(f"'{m}'" for m in config.motions)
     durations = ','.join(f'{float(d)}' for d in config.durations)
     specs.append(NodeSpec('gait_publisher', 'exo_has_control.gait_publisher', (
@@ -291,6 +325,45 @@ def node_specs(config: SessionConfig, bag: Path | None) -> list[NodeSpec]:
     for name, members in composition.items():
         specs = compose(specs, name, members)
     return specs
+
+
+def devices_priority(realtime_priority: int) -> int:
+    """Return the SCHED_FIFO priority of the simulated CAN devices: one under the robot's.
+
+    On the robot the drives and sensor boards are hardware and take no CPU from the robot PC;
+    here they share its cores, and at the same priority as the bus thread they ran to the end of
+    their step while it waited: the robot loop's lateness reached 2 to 4 ms at 200 Hz, its
+    longest gap 8 to 9 ms, where one level under it they were 0.2 and 5.2 ms (2 busy processes
+    beside, 10 s each, 2026-11-27). At priority 1 the devices take the default scheduler.
+    """
+    return max(realtime_priority - 1, 0)
+
+
+def robot_side(config: SessionConfig, channel: str) -> list[NodeSpec]:
+    """Return the robot loop and its bridge for a session on the CAN bus ``channel``.
+
+    Their sockets are in a directory named after the bus, short enough for a socket's path
+    and distinct for each session on this machine (a random bus each).
+    """
+    directory = Path(tempfile.gettempdir()) / f'exo_has-robot-{channel}'
+    files = {kind: config.params.get(kind, kind) for kind in ('hip', 'knee')}
+    gains = config.node_arguments.get('pd_controller', ())
+    return [
+        NodeSpec('robot_loop', 'exo_has_bringup.robot_main', (
+            '--interface', 'udp_multicast', '--channel', channel, '--rate', f'{config.rate}',
+            '--bitrate', f'{config.can_bitrate}',
+            '--hip-params', files['hip'], '--knee-params', files['knee'],
+            '--stale-periods', f'{config.stale_periods}', '--socket-dir', f'{directory}',
+            '--realtime-priority', f'{config.realtime_priority}',
+            *(('--cpus', config.robot_cpus) if config.robot_cpus else ())),
+            ready=r'robot loop ready', stage=2),
+        NodeSpec('robot_bridge', 'exo_has_bringup.robot_bridge', (
+            '--ros-args', '-p', f'socket_dir:={directory}', '-p', f'rate:={config.rate}',
+            *(token for kind in ('hip', 'knee') for token in ('-p', f'{kind}.params:='
+                                                              f'{files[kind]}')),
+            *gains), ready=r'robot bridge ready', stage=3,
+            node_class='exo_has_bringup.robot_bridge:RobotBridge'),
+    ]
 
 
 def robot_bag_of(bag: Path) -> Path:

@@ -187,7 +187,8 @@ class Session:
                 if recorder in self.processes:
                     # At least the session's own topics (load topics come when someone
                     # publishes, and the count rises by as many as discovery found at once).
-                    self._wait_for_recording(recorder, len(recorded_topics()))
+                    self._wait_for_recording(recorder, len(recorded_topics(
+                        commands=self.config.hardware != 'robot')))
             # The gait publisher's start delay runs once its readers have matched.
             self.process_of('gait_publisher').wait_for_output(r'trials start in', READY_TIMEOUT)
             self.started_at = time.monotonic() + self.config.start_delay

@@ -41,6 +41,28 @@ def test_the_can_hardware_composes_nothing_by_default():
     assert 'plants' not in [spec.name for spec in specs]
 
 
+def test_the_robot_hardware_runs_the_loop_and_its_bridge_in_place_of_the_three_nodes():
+    config = SessionConfig(hardware='robot', rate=250.0, stale_periods=30, can_bitrate=2_000_000,
+                           node_arguments={'pd_controller': ('-p', 'knee.kp:=30000.0')})
+    specs = {spec.name: spec for spec in node_specs(config, Path('bag'))}
+    assert list(specs) == ['recorder', 'can_devices', 'robot_loop', 'robot_bridge',
+                           'gait_publisher']
+    loop = ' '.join(specs['robot_loop'].arguments)
+    bridge = ' '.join(specs['robot_bridge'].arguments)
+    channel = re.search(r'--channel (\S+)', ' '.join(specs['can_devices'].arguments)).group(1)
+    assert f'--channel {channel}' in loop and '--rate 250.0' in loop
+    assert '--stale-periods 30' in loop and '--bitrate 2000000' in loop
+    directory = re.search(r'--socket-dir (\S+)', loop).group(1)
+    assert f'socket_dir:={directory}' in bridge and 'rate:=250.0' in bridge
+    assert 'knee.kp:=30000.0' in bridge  # the controller's gains go to the bridge
+    assert len(directory.encode()) < 90  # a socket's path in it fits sun_path's 108 bytes
+    # The bridge alone reads the reference beside the recorder; no command topic is recorded.
+    assert 'wait_for_subscribers:=2' in ' '.join(specs['gait_publisher'].arguments)
+    assert 'has_command' not in ' '.join(specs['recorder'].arguments)
+    other = node_specs(SessionConfig(hardware='robot'), None)
+    assert re.search(r'--socket-dir (\S+)', ' '.join(other[1].arguments)).group(1) != directory
+
+
 def test_a_container_is_ready_only_once_every_member_said_so_in_any_order():
     specs = node_specs(SessionConfig(), None)
     ready = next(spec for spec in specs if spec.name == 'plants').ready
@@ -82,13 +104,16 @@ def test_extra_arguments_reach_the_node_they_name_and_no_other():
     assert not any('batch:=false' in a for name, a in arguments.items() if name != 'watchdog')
 
 
-@pytest.mark.parametrize('hardware', ['plants', 'can'])
+@pytest.mark.parametrize('hardware', ['plants', 'can', 'robot'])
 def test_the_sessions_realtime_priority_reaches_the_joints_and_not_the_controller(hardware):
     config = SessionConfig(hardware=hardware, realtime_priority=20, composition={})
     arguments = {spec.name: ' '.join(spec.arguments) for spec in node_specs(config, None)}
-    assert 'realtime_priority' not in arguments['pd_controller']
-    joints = (['can_devices', 'driver'] if hardware == 'can'
-              else [f'{joint}_plant' for joint in JOINT_NAMES])
+    assert 'realtime_priority' not in arguments.get('pd_controller', '')
+    assert 'realtime_priority' not in arguments.get('robot_bridge', '')
+    joints = {'can': ['driver'], 'robot': ['robot_loop'],
+              'plants': [f'{joint}_plant' for joint in JOINT_NAMES]}[hardware]
+    if hardware != 'plants':  # the simulated hardware one level under the robot's threads
+        assert '--realtime-priority 19' in arguments['can_devices']
     for name in joints:
         assert 'realtime_priority:=20' in arguments[name] \
             or '--realtime-priority 20' in arguments[name], name

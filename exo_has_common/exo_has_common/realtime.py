@@ -8,6 +8,14 @@ as ros2_control runs its control loop on a robot PC. Only the calling thread is 
 DDS threads a node created before stay ordinary, so a busy one cannot hold the loop off at its
 own priority. Needs root or ``CAP_SYS_NICE`` (or an ``rtprio`` limit in
 ``/etc/security/limits.conf``); without, the loop runs as before and the caller is told why.
+
+A CPU of its own (:func:`set_cpus`, as ``taskset`` or an isolated core gives one): SCHED_FIFO
+does not keep the kernel's network work off the loop's CPU. A process sending over the loopback
+or a NIC leaves packets for the NET_RX softirq of the CPU it runs on, and a thread there runs
+that backlog when it next sends (its own frames and everyone's DDS traffic alike), or is held
+up while an interrupt's exit runs it. With a ROS session beside it on the same two cores the
+robot loop ran ~4 ms late for stretches of a hundred periods; kept to its own CPU, with the
+session on the other, 0.1 ms (bench/README.md, "The robot side against the old chain").
 ROS-free.
 """
 
@@ -57,4 +65,59 @@ def set_realtime_priority(priority: int, thread_id: int = 0) -> str | None:
     except OSError as exc:
         return f'cannot set SCHED_FIFO priority {priority} ({exc}): running under the default ' \
                'scheduler'
+    return None
+
+
+def parse_cpus(text: str) -> frozenset[int]:
+    """Read a CPU list as ``taskset -c`` writes it: ``1``, ``2,3``, ``0-3``.
+
+    Raises
+    ------
+    ValueError
+        For a list that is empty, malformed, or names a CPU this machine does not have; the
+        message names the list and the CPUs there are.
+
+    """
+    available = sorted(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') else []
+    count = os.cpu_count() or 1
+    cpus: set[int] = set()
+    try:
+        for part in text.split(','):
+            first, _, last = part.strip().partition('-')
+            low, high = int(first), int(last or first)
+            if low < 0 or high < low:
+                raise ValueError(part)
+            cpus.update(range(low, high + 1))
+    except ValueError:
+        msg = f'CPU list {text!r}: expected numbers and ranges such as 1 or 2,3 or 0-3'
+        raise ValueError(msg) from None
+    missing = sorted(cpu for cpu in cpus if cpu >= count)
+    if missing:
+        msg = (f'CPU list {text!r} names CPU {", ".join(map(str, missing))}, which this machine '
+               f'does not have (it has 0 to {count - 1}; this process may run on '
+               f'{",".join(map(str, available))})')
+        raise ValueError(msg)
+    return frozenset(cpus)
+
+
+def set_cpus(cpus: frozenset[int]) -> str | None:
+    """Keep the calling thread, and the threads it starts from now on, to ``cpus``.
+
+    A thread keeps the CPUs of the thread that started it: call this before starting the
+    threads that should share them. Threads started before keep theirs.
+
+    Returns
+    -------
+    str or None
+        Why the affinity could not be set, or None.
+
+    """
+    if not cpus:
+        return None
+    if not hasattr(os, 'sched_setaffinity'):
+        return 'this platform sets no CPU affinity: running on every CPU'
+    try:
+        os.sched_setaffinity(0, cpus)
+    except OSError as exc:
+        return f'cannot keep to CPUs {sorted(cpus)} ({exc}): running on every CPU'
     return None

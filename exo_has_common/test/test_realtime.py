@@ -7,7 +7,7 @@ import threading
 
 import pytest
 
-from exo_has_common.realtime import MAX_PRIORITY, set_realtime_priority
+from exo_has_common.realtime import MAX_PRIORITY, parse_cpus, set_cpus, set_realtime_priority
 
 
 def _policy_of_a_thread_set_to(priority: int) -> tuple[str | None, int, int]:
@@ -45,3 +45,37 @@ def test_a_priority_puts_only_the_calling_thread_under_sched_fifo_where_permitte
 def test_a_priority_out_of_range_is_refused_with_the_range(priority) -> None:
     with pytest.raises(ValueError, match=f'within 0 and {MAX_PRIORITY}'):
         set_realtime_priority(priority)
+
+
+@pytest.mark.parametrize(('text', 'cpus'), [('0', {0}), ('0,1', {0, 1}), ('0-1', {0, 1}),
+                                            (' 1 , 0 ', {0, 1})])
+def test_a_cpu_list_is_read_as_taskset_writes_it(text, cpus) -> None:
+    assert parse_cpus(text) == cpus
+
+
+@pytest.mark.parametrize(('text', 'wording'), [('', 'expected numbers and ranges'),
+                                               ('1-0', 'expected numbers and ranges'),
+                                               ('a', 'expected numbers and ranges'),
+                                               ('4096', 'which this machine does not have')])
+def test_a_bad_cpu_list_is_refused_naming_it(text, wording) -> None:
+    with pytest.raises(ValueError, match=wording):
+        parse_cpus(text)
+
+
+def test_cpus_keep_the_calling_thread_and_those_it_starts_afterwards() -> None:
+    def affinity_of_a_new_thread() -> set[int]:
+        seen: list[set[int]] = []
+        thread = threading.Thread(target=lambda: seen.append(os.sched_getaffinity(0)))
+        thread.start()
+        thread.join()
+        return seen[0]
+
+    before = os.sched_getaffinity(0)
+    try:
+        assert set_cpus(frozenset({0})) is None
+        assert os.sched_getaffinity(0) == {0}
+        assert affinity_of_a_new_thread() == {0}
+    finally:
+        os.sched_setaffinity(0, before)
+    assert set_cpus(frozenset()) is None  # none asked: left as it is
+    assert os.sched_getaffinity(0) == before

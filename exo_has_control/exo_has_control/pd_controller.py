@@ -23,7 +23,6 @@ inside one. The same judgement refuses unsafe gains at start.
 
 from __future__ import annotations
 
-from dataclasses import replace
 from functools import partial
 from typing import Any
 
@@ -40,7 +39,8 @@ from exo_has_common.topics import (
     has_command_topic,
     has_state_topic,
 )
-from exo_has_control.pd import PAPER_KD, PAPER_KP, PdGains, PositionLoop, unsafe_gains
+from exo_has_control.gain_parameters import declare_gains, gain_changes
+from exo_has_control.pd import PdGains, PositionLoop
 from exo_has_control.tracking import DEFAULT_REJOIN_SPEED, ReferenceFollower
 from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
 from exo_has_runtime.execution import run_node
@@ -51,11 +51,6 @@ from exo_has_runtime.node_parameters import (
 )
 from exo_has_runtime.profiles import SAFETY_EVENT_QOS
 from exo_has_sim.parameters import HasParameters, load_parameters
-
-#: Bounds of every gain and of the motor speed limit (in their units).
-GAIN_RANGE = (0.0, 1.0e7)
-#: The parameters of a joint type's gains (``hip.kp``, ...) and the PdGains field of each.
-GAIN_FIELDS = {'kp': 'kp', 'kd': 'kd', 'kff': 'kff', 'motor_speed_limit': 'speed_limit'}
 
 
 class PdController(Node):
@@ -90,7 +85,7 @@ class PdController(Node):
             kind = joint_type_of(joint)
             if kind not in self._params:
                 self._params[kind] = self._joint_type_parameters(kind)
-                self._gains[kind] = self._declare_gains(self._params[kind])
+                self._gains[kind] = declare_gains(self, self._params[kind], self._period)
             params = self._params[kind]
             self._loops[joint] = PositionLoop(self._gains[kind])
             self._followers[joint] = ReferenceFollower(joint, params, timeout, rejoin_speed)
@@ -122,47 +117,12 @@ class PdController(Node):
             self, f'{kind}.params', kind,
             f'{kind} HAS parameter set (linkage, motor limit): {kind} or a parameters YAML file'))
 
-    def _declare_gains(self, params: HasParameters) -> PdGains:
-        """Declare and read the gains of a joint type; refuse them where unsafe."""
-        kind = params.joint_type
-        paper = PdGains.paper(params)
-        specs = (
-            ('kp', PAPER_KP, "position gain [(rad/s)/m]: the paper's P = 35 read as (rad/s) "
-                             'per mm'),
-            ('kd', PAPER_KD, "velocity-error gain [(rad/s)/(m/s)]: the paper's D = 15"),
-            ('kff', paper.kff, 'velocity feedforward [(rad/s)/(m/s)]: 1/K of Eq. 14 with A_A; '
-                               "0 gives the paper's pure PD"),
-            ('motor_speed_limit', params.motor_speed_max,
-             'motor speed saturation [rad/s] (the paper: 4000 r/min)'),
-        )
-        values = {GAIN_FIELDS[key]: declare(self, f'{kind}.{key}', float(default), description,
-                                            GAIN_RANGE, read_only=False)
-                  for key, default, description in specs}
-        gains = PdGains(**values)
-        problem = unsafe_gains(params, gains, self._period)
-        if problem:
-            msg = f'{kind} gains: {problem}'
-            raise ValueError(msg)
-        return gains
-
     def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
         """Judge a change of gains; apply it where safe, refuse it with the reason otherwise."""
-        changes: dict[str, dict[str, float]] = {}
-        for parameter in parameters:
-            kind, _, key = parameter.name.partition('.')
-            if kind in self._params and key in GAIN_FIELDS:
-                changes.setdefault(kind, {})[GAIN_FIELDS[key]] = float(parameter.value)
-        accepted: dict[str, PdGains] = {}
-        for kind, values in changes.items():
-            try:
-                gains = replace(self._gains[kind], **values)
-            except ValueError as exc:
-                return SetParametersResult(successful=False, reason=f'{kind} gains: {exc}')
-            problem = unsafe_gains(self._params[kind], gains, self._period)
-            if problem:
-                self.get_logger().warning(f'gain change refused: {kind}: {problem}')
-                return SetParametersResult(successful=False, reason=f'{kind} gains: {problem}')
-            accepted[kind] = gains
+        accepted, reason = gain_changes(parameters, self._gains, self._params, self._period)
+        if reason:
+            self.get_logger().warning(f'gain change refused: {reason}')
+            return SetParametersResult(successful=False, reason=reason)
         for kind, gains in accepted.items():
             self._gains[kind] = gains
             for joint, loop in self._loops.items():

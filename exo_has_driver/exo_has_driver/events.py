@@ -17,6 +17,11 @@ from collections.abc import Hashable, Sequence
 from dataclasses import dataclass
 from enum import IntEnum
 
+#: [s] How long a reported condition must stay absent to be reported cleared (and be reported
+#: again should it return): fifty periods at 200 Hz. One that comes and goes faster (a second
+#: plant's states beside the real one's, a slave's TPDOs lost now and then) stays one condition.
+CLEAR_TIME = 0.25
+
 
 class SafetyKind(IntEnum):
     """What an event is about, numbered as SafetyEvent's ``KIND_*`` (their units there)."""

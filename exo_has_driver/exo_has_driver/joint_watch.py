@@ -16,7 +16,15 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from exo_has_driver.events import Condition, Event, Phase, SafetyKind, Severity, StopLatch
+from exo_has_driver.events import (
+    CLEAR_TIME,
+    Condition,
+    Event,
+    Phase,
+    SafetyKind,
+    Severity,
+    StopLatch,
+)
 from exo_has_driver.safety_limits import SafetyLimits
 from exo_has_driver.second_source import second_source
 from exo_has_sim.errors import KinematicsError
@@ -36,9 +44,6 @@ END_STOP_TOLERANCE = 2e-3
 PRESSURE_HYSTERESIS = 0.05
 #: [m] Distance beyond the margin the position must leave an end by before another event.
 STROKE_HYSTERESIS = 0.5e-3
-#: [s] How long a reported condition must stay absent to be reported cleared (and be reported
-#: again should it return): fifty periods at 200 Hz.
-CLEAR_TIME = 0.25
 
 
 @dataclass(frozen=True)

@@ -216,6 +216,17 @@ class Watchdog:
                            'graph: every joint holds until a reset')
         return [self._hold]
 
+    def withdraw_reference(self, t: float) -> None:
+        """Forget every joint's reference at t [s], as when its publisher left.
+
+        Nothing is judged against a reference, nor is one stale, until the next comes: what a
+        controller that stops following (a deactivated robot loop, which holds every joint)
+        needs, so that neither the hold nor its end is taken for a lost reference.
+        """
+        for state in self._joints.values():
+            state.take_reference(t, math.nan)
+        self._reference_time = None
+
     def _reference_age(self, t: float) -> float | None:
         """Age [s] of the newest joint reference at t [s]; None before one (or withdrawn)."""
         return None if self._reference_time is None else t - self._reference_time

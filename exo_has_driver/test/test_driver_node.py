@@ -56,7 +56,7 @@ class Devices:
         self.process = subprocess.Popen(
             [sys.executable, '-u', '-m', 'exo_has_driver.devices.main', '--interface',
              'udp_multicast', '--channel', group, '--joints', *JOINTS,
-             '--realtime-priority', str(REALTIME_PRIORITY)],
+             '--realtime-priority', str(REALTIME_PRIORITY - 1)],  # under the bus thread
             stdin=subprocess.PIPE, stdout=self.log, stderr=subprocess.STDOUT, text=True,
             cwd=tempfile.gettempdir())
 

@@ -16,7 +16,7 @@ from exo_has_driver.errors import (
     CanOpenTimeoutError,
     HardwareConfigError,
 )
-from exo_has_driver.events import SafetyKind, Severity
+from exo_has_driver.events import CLEAR_TIME, Phase, SafetyKind, Severity
 from exo_has_driver.hardware import cia402
 from exo_has_driver.hardware.config import JointConfig, MasterConfig, infer_valve_mode
 from exo_has_driver.hardware.master import Master
@@ -638,3 +638,23 @@ def test_a_slave_that_rebooted_while_running_refuses_every_reset_until_the_resta
     warning = next(e for e in setup.events[count:] if e.severity == Severity.WARN)
     assert 'restart the driver' in warning.text
     assert setup.master.latched
+
+
+def test_a_slave_lost_now_and_then_is_one_condition_reported_when_it_starts_and_clears(setup):
+    # The left hip's devices fall silent for 100 ms in every 160 ms: each gap is over the
+    # missing SYNCs (10 at 5 ms) and under the heartbeat timeout (150 ms); gaps closer than
+    # CLEAR_TIME are one condition, reported once, and cleared once after the last.
+    commands = dict.fromkeys(JOINTS, (0.0, True))
+    setup.run(0.2, commands=commands)
+    for _ in range(5):
+        setup.rig.set_silent('left_hip', True)
+        setup.run(0.1, commands=commands)
+        setup.rig.set_silent('left_hip', False)
+        setup.run(0.06, commands=commands)
+    setup.run(CLEAR_TIME + 0.25, commands=commands)
+    missing = [e for e in setup.events if 'no TPDO' in e.text]
+    assert [(e.severity, e.phase) for e in missing] == [(Severity.FATAL, Phase.START)] * 2 \
+        + [(Severity.INFO, Phase.CLEAR)] * 2, [e.text for e in missing]
+    assert {e.joint for e in missing} == {'left_hip'}
+    assert all(e.text.startswith('cleared: ') for e in missing[2:])
+    assert setup.master.latched  # cleared, not released: that takes a reset

@@ -7,7 +7,7 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from exo_has_common.joints import JOINT_NAMES
 from exo_has_driver import joint_watch
 from exo_has_driver.errors import SafetyConfigError
-from exo_has_driver.events import Phase, SafetyKind, Severity
+from exo_has_driver.events import CLEAR_TIME, Phase, SafetyKind, Severity
 from exo_has_driver.joint_watch import LEVEL_ERROR, LEVEL_OK, LEVEL_STALE, LEVEL_WARN
 from exo_has_driver.safety import Watchdog
 from exo_has_driver.safety_limits import SafetyLimits
@@ -163,7 +163,7 @@ def test_over_pressure_warns_once_reports_when_it_has_cleared_and_warns_anew_aft
     assert not watchdog.stopped
     # Then away for CLEAR_TIME: reported cleared once, and a new one is a new condition.
     start = t + len(pressures) * PERIOD
-    steps = round(joint_watch.CLEAR_TIME / PERIOD) + 2
+    steps = round(CLEAR_TIME / PERIOD) + 2
     events = [e for k in range(steps) for e in feed(watchdog, start + k * PERIOD)]
     cleared = only(events)
     assert (cleared.joint, cleared.kind, cleared.severity, cleared.phase) == (

@@ -54,6 +54,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import ok, try_shutdown
 
+from exo_has_common.stopping import StopRequest
 from exo_has_runtime.dds import configure_transport
 from exo_has_runtime.errors import DdsConfigurationError
 
@@ -136,27 +137,6 @@ def spin(nodes: Node | Sequence[Node], executor: Executor | None = None,
             executor.spin_once(timeout_sec=SPIN_SLICE_S)
     finally:
         executor.shutdown()
-
-
-class StopRequest:
-    """A stop that a signal handler may ask for: a plain flag, no lock.
-
-    ``threading.Event.set`` takes a lock; a signal handler runs in the main thread between two
-    bytecodes, possibly inside another handler's ``Event.set``, and a second signal there
-    (SIGTERM from a dying parent on top of the owner's SIGINT, say) would wait on that lock
-    forever: a node that never ends. Setting an attribute cannot block.
-    """
-
-    def __init__(self) -> None:
-        self._requested = False
-
-    def set(self) -> None:
-        """Ask for the stop (safe in a signal handler, any number of times)."""
-        self._requested = True
-
-    def is_set(self) -> bool:
-        """Whether the stop was asked for."""
-        return self._requested
 
 
 class _StopOnSignal:

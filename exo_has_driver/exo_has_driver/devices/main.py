@@ -40,13 +40,12 @@ import argparse
 import contextlib
 import logging
 import math
-import signal
 import sys
 import threading
 from collections.abc import Sequence
-from types import FrameType
 
-from exo_has_common.realtime import MAX_PRIORITY, set_realtime_priority
+from exo_has_common.realtime import MAX_PRIORITY, parse_cpus, set_cpus, set_realtime_priority
+from exo_has_common.stopping import stop_on_signals
 from exo_has_driver import can_dictionary as cd
 from exo_has_driver.devices.rig import DEFAULT_LOAD_MASS, Rig
 from exo_has_driver.errors import DriverError, FaultInjectionError
@@ -181,6 +180,9 @@ def _parser() -> argparse.ArgumentParser:
                         help=f'SCHED_FIFO priority (1 to {MAX_PRIORITY}) of the threads that run '
                              'the devices, as the drives and boards run on microcontrollers of '
                              'their own; 0: the default scheduler (default: %(default)s)')
+    parser.add_argument('--cpus', default='', metavar='LIST',
+                        help='CPUs the devices keep to, as taskset -c takes them (1, 2-3); '
+                             'default: any')
     parser.add_argument('--log-level', default='INFO',
                         choices=['DEBUG', 'INFO', 'WARNING', 'ERROR'])
     return parser
@@ -208,18 +210,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     if problem is not None:
         logging.getLogger('can_devices').warning('--realtime-priority: %s', problem)
     try:
+        pinned = set_cpus(parse_cpus(args.cpus) if args.cpus else frozenset())
+    except ValueError as error:
+        parser.error(f'--cpus: {error}')
+    if pinned is not None:
+        logging.getLogger('can_devices').warning('--cpus: %s', pinned)
+    try:
         # The bit rate matters only to interfaces that set it (not SocketCAN, nor simulated).
         bus = open_bus(args.interface, args.channel, 1_000_000)
     except DriverError as error:
         print(f'can_devices: {error}', file=sys.stderr)
         return 2
-    stop = threading.Event()
-
-    def on_signal(number: int, frame: FrameType | None) -> None:
-        stop.set()
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
+    stop = stop_on_signals()
     rig: Rig | None = None
     try:
         rig = Rig(bus, args.joints, initial_angle=args.initial_angle, tick=args.tick,

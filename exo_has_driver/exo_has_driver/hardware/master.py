@@ -25,6 +25,12 @@ completes the joints' samples. A failed receive is a bus fault; after
 (:meth:`set_command`), appends a request, or pops the queues (:meth:`take_samples`,
 :meth:`take_events`): it never waits on the bus.
 
+Control in the I/O thread (:attr:`Master.control`): a callable given the time [s] at the start
+of every SYNC cycle, once the frames received are handled (the samples of the previous SYNC
+complete) and before the requests, the supervision and the RPDOs: what it does through the
+caller's methods above (commands, stop and reset requests) goes out with this very SYNC, with no
+thread between the bus and the control law. The latched stop still overrides its commands.
+
 Supervision (:class:`~.supervision.Supervision`) latches a stop on every fault of the slaves
 and the bus, and releases it on a reset once none holds. While latched every drive is sent
 quick stop (it brakes on its quick stop ramp to switch on disabled) and then disable voltage,
@@ -100,14 +106,20 @@ class Master:
         Joints, units and timing.
     clock : callable
         Monotonic time [s]; the default is :func:`time.monotonic`.
+    control : callable or None
+        Called by the I/O thread with the time [s] at each SYNC cycle (module docstring); the
+        attribute :attr:`control` may be set at any time, read at each cycle. An exception it
+        raises ends the I/O thread as a failed bus does (the drives are sent quick stop).
 
     """
 
     def __init__(self, bus: can.BusABC, config: MasterConfig,
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic,
+                 control: Callable[[float], None] | None = None) -> None:
         self.bus = bus
         self.config = config
         self._clock = clock
+        self.control = control
         self._units = config.units
         self._joints = [JointRecord(joint) for joint in config.joints]
         self._indices = {joint.config.name: index for index, joint in enumerate(self._joints)}
@@ -127,6 +139,9 @@ class Master:
         self._sync_count = 0
         self._receive_failures = 0
         self.failure: BaseException | None = None
+        #: When the SYNC of the cycle being run was due [s] on the master's grid (the control
+        #: sees its own lateness against it); NaN before the first cycle.
+        self.sync_due = math.nan
 
     # --- the caller's side -------------------------------------------------------------------
     @property
@@ -211,8 +226,12 @@ class Master:
         return _drain(self._supervision.events)
 
     # --- start and close ---------------------------------------------------------------------
-    def start(self) -> None:
+    def start(self, enable: bool = True) -> None:
         """Bring every slave up and the drives to operation enabled at zero speed; blocking.
+
+        With ``enable`` false the drives are left disabled (commanded so, at zero speed) and
+        the call returns once the I/O thread runs: the caller's commands enable them, as a
+        managed driver's activation does.
 
         Raises
         ------
@@ -238,8 +257,13 @@ class Master:
         except BaseException:
             self._send_best_effort_stop()
             raise
+        if not enable:
+            now = self._clock()
+            self._commands = [(0.0, False, now)] * len(self._joints)
         self._thread = threading.Thread(target=self._run, name='can-master', daemon=True)
         self._thread.start()
+        if not enable:
+            return
         deadline = self._clock() + self.config.enable_timeout
         while not self.all_enabled():
             if self._supervision.latched or not self.running or self._clock() > deadline:
@@ -346,6 +370,7 @@ class Master:
                     if message is None:
                         break
                     on_frame(message)
+                self.sync_due = next_sync
                 self._cycle(clock())
                 next_sync += period
                 if next_sync < now:
@@ -382,6 +407,9 @@ class Master:
         return message, True
 
     def _cycle(self, now: float) -> None:
+        control = self.control
+        if control is not None:
+            control(now)  # its requests and commands go out with this SYNC
         while self._requests:
             kind, text = self._requests.popleft()
             if kind == 'stop':

@@ -9,8 +9,11 @@ SYNC periods, a failed send or receive, a bus-off or error-passive bus (BUS_OFF)
 channel without reading, flagged by the board or out of range (SENSOR_FAULT), an e-stop
 request (E_STOP), and the conditions the caller holds (a second source of a joint's topics).
 One method lists the conditions that hold (:meth:`Supervision.conditions`): supervision
-latches them, a reset is refused while they hold. A condition is reported once while it lasts;
-events that are not states (an EMCY, a drive leaving operation enabled, an e-stop) are latched
+latches them, a reset is refused while they hold. A condition is reported once when it starts
+(FATAL) and once when it has been absent for :data:`~exo_has_driver.events.CLEAR_TIME` (INFO,
+phase CLEAR), as the watchdog's are: one that comes and goes faster (a slave's TPDOs lost now
+and then on a loaded machine) stays one condition, where it was reported at every return.
+Events that are not states (an EMCY, a drive leaving operation enabled, an e-stop) are latched
 where they come (:meth:`Supervision.report`).
 
 :meth:`Supervision.reset` works in two phases: refused (a WARN event naming what holds) while a
@@ -28,11 +31,19 @@ from __future__ import annotations
 
 import collections
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Hashable, Sequence
 from dataclasses import replace
 
 from exo_has_driver import can_dictionary as cd
-from exo_has_driver.events import Condition, Event, SafetyKind, Severity, StopLatch
+from exo_has_driver.events import (
+    CLEAR_TIME,
+    Condition,
+    Event,
+    Phase,
+    SafetyKind,
+    Severity,
+    StopLatch,
+)
 from exo_has_driver.hardware import cia402, frames
 from exo_has_driver.hardware.config import MasterConfig
 from exo_has_driver.hardware.records import JointRecord, SlaveRecord
@@ -85,6 +96,9 @@ class Supervision:
         self._receive_fault_time = -math.inf
         # End of the second phase of a reset: drives sent a fault reset edge must leave fault.
         self._reset_until: float | None = None
+        # The conditions reported and not cleared, by key, and since when each is absent.
+        self._reported: dict[Hashable, Condition] = {}
+        self._absent_since: dict[Hashable, float] = {}
 
     @property
     def latched(self) -> bool:
@@ -134,14 +148,29 @@ class Supervision:
         self._receive_fault_time = now
 
     def supervise(self, now: float, sync_count: int) -> None:
-        """Latch the conditions that hold now, and forget those that stopped holding."""
+        """Latch the conditions that hold now; report cleared those absent for CLEAR_TIME."""
         conditions = self.conditions(now, sync_count)
         for condition in conditions:
-            self.events += self._latch.report_once(condition)
+            self._absent_since.pop(condition.key, None)
+            started = self._latch.report_once(condition)
+            if started:
+                self._reported[condition.key] = condition
+                self.events += started
         holding = {condition.key for condition in conditions}
-        self._latch.forget({key for key in self._latch.reported
-                            if isinstance(key, tuple) and key[0] in _CONDITION_KEYS
-                            and key not in holding})
+        reported = self._latch.reported
+        for key in [k for k in self._reported if k not in reported]:
+            del self._reported[key]  # forgotten otherwise (a reset): no clear to report
+            self._absent_since.pop(key, None)
+        for key, condition in list(self._reported.items()):
+            if key in holding or not (isinstance(key, tuple) and key[0] in _CONDITION_KEYS):
+                continue
+            since = self._absent_since.setdefault(key, now)
+            if now - since >= CLEAR_TIME:
+                del self._reported[key], self._absent_since[key]
+                self._latch.forget({key})
+                self.events.append(Event(condition.joint, condition.kind, Severity.INFO, _NAN,
+                                         _NAN, self._latch.latched,
+                                         f'cleared: {condition.text}', Phase.CLEAR))
 
     def conditions(self, now: float, sync_count: int) -> list[Condition]:
         """List the fault conditions that hold now: what supervision latches, what forbids a reset.
