@@ -78,7 +78,7 @@ from exo_has_common.topics import (
     has_command_topic,
     has_state_topic,
 )
-from exo_has_control.gain_parameters import declare_gains, gain_changes
+from exo_has_control.gain_parameters import declare_gains, declare_parameter_set, gain_changes
 from exo_has_control.pd import PdGains
 from exo_has_driver.messages import safety_event
 from exo_has_driver.second_source import second_source
@@ -87,7 +87,7 @@ from exo_has_runtime.execution import run_node
 from exo_has_runtime.graph import PublisherWatch
 from exo_has_runtime.node_parameters import declare
 from exo_has_runtime.profiles import SAFETY_EVENT_QOS
-from exo_has_sim.parameters import HasParameters, load_parameters
+from exo_has_sim.parameters import HasParameters
 from exo_has_sim.state_message import has_state, nanoseconds
 
 #: Name of the loop's status on ``/diagnostics``.
@@ -128,10 +128,7 @@ class RobotBridge(LifecycleNode):
         self._params: dict[str, HasParameters] = {}
         self._gains: dict[str, PdGains] = {}
         for kind in JOINT_TYPES:
-            self._params[kind] = load_parameters(declare(
-                self, f'{kind}.params', kind,
-                f'{kind} HAS parameter set (linkage, motor limit): {kind} or a parameters YAML '
-                'file'))
+            self._params[kind] = declare_parameter_set(self, kind)
             self._gains[kind] = declare_gains(self, self._params[kind], self._period)
         self._exchange = bridge_end(Path(directory))
         self._inbox: collections.deque[Message] = collections.deque()

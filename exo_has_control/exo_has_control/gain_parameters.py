@@ -1,5 +1,8 @@
 """The PD gains as node parameters: declared per joint type, changed at run time when safe.
 
+With them each joint type's parameter set, ``<type>.params`` (:func:`declare_parameter_set`),
+whose linkage and motor limit the gains are judged on.
+
 One source for every node that runs the PD law: the PD controller node (the simulation's and
 the old chain's) and the robot loop's bridge (issue 28). A joint type's gains are the
 parameters ``<type>.kp``, ``<type>.kd``, ``<type>.kff`` and ``<type>.motor_speed_limit``
@@ -19,12 +22,19 @@ from rclpy.parameter import Parameter
 
 from exo_has_control.pd import PAPER_KD, PAPER_KP, PdGains, unsafe_gains
 from exo_has_runtime.node_parameters import declare
-from exo_has_sim.parameters import HasParameters
+from exo_has_sim.parameters import HasParameters, load_parameters
 
 #: Bounds of every gain and of the motor speed limit (in their units).
 GAIN_RANGE = (0.0, 1.0e7)
 #: The parameters of a joint type's gains (``hip.kp``, ...) and the PdGains field of each.
 GAIN_FIELDS = {'kp': 'kp', 'kd': 'kd', 'kff': 'kff', 'motor_speed_limit': 'speed_limit'}
+
+
+def declare_parameter_set(node: Node, kind: str) -> HasParameters:
+    """Declare and load a joint type's parameter set, ``<kind>.params`` (``hip``, ``knee``)."""
+    return load_parameters(declare(
+        node, f'{kind}.params', kind,
+        f'{kind} HAS parameter set (linkage, motor limit): {kind} or a parameters YAML file'))
 
 
 def declare_gains(node: Node, params: HasParameters, period: float) -> PdGains:

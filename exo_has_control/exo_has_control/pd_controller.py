@@ -39,7 +39,7 @@ from exo_has_common.topics import (
     has_command_topic,
     has_state_topic,
 )
-from exo_has_control.gain_parameters import declare_gains, gain_changes
+from exo_has_control.gain_parameters import declare_gains, declare_parameter_set, gain_changes
 from exo_has_control.pd import PdGains, PositionLoop
 from exo_has_control.tracking import DEFAULT_REJOIN_SPEED, ReferenceFollower
 from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
@@ -50,7 +50,7 @@ from exo_has_runtime.node_parameters import (
     declare_realtime_priority,
 )
 from exo_has_runtime.profiles import SAFETY_EVENT_QOS
-from exo_has_sim.parameters import HasParameters, load_parameters
+from exo_has_sim.parameters import HasParameters
 
 
 class PdController(Node):
@@ -84,7 +84,7 @@ class PdController(Node):
         for joint in (check_joint(j) for j in joints):
             kind = joint_type_of(joint)
             if kind not in self._params:
-                self._params[kind] = self._joint_type_parameters(kind)
+                self._params[kind] = declare_parameter_set(self, kind)
                 self._gains[kind] = declare_gains(self, self._params[kind], self._period)
             params = self._params[kind]
             self._loops[joint] = PositionLoop(self._gains[kind])
@@ -110,12 +110,6 @@ class PdController(Node):
                           for joint, loop in self._loops.items())
         self.get_logger().info(f'pd controller ready ({gains}; kp in (rad/s)/m, kd and kff in '
                                '(rad/s)/(m/s), limit in rad/s)')
-
-    def _joint_type_parameters(self, kind: str) -> HasParameters:
-        """Declare (once) and load the parameter set of a joint type."""
-        return load_parameters(declare(
-            self, f'{kind}.params', kind,
-            f'{kind} HAS parameter set (linkage, motor limit): {kind} or a parameters YAML file'))
 
     def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
         """Judge a change of gains; apply it where safe, refuse it with the reason otherwise."""
