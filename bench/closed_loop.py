@@ -57,6 +57,17 @@ Per session (the trials: from the first reference to the end of the last trial, 
 - ``robot`` only: the loop's cycle compute max [ms], and the datagrams it dropped (the bridge's
   socket queue full, or no bridge there yet or any more) over its whole run and in the trials.
 
+What the platform did, with ``--witness-priority N`` (:mod:`witness`): cyclictest on the robot's
+CPUs under SCHED_FIFO N (above the loop), waking every 1 ms through each session: its
+lateness, and the steal time of those CPUs.
+With ``--trace`` as well (root, one robot CPU; :mod:`kernel_trace`), the kernel's trace of
+that CPU through the session: the spans it was absent (no event for over 1.5 ms, with the
+witness's timer due every 1 ms: the host ran something else under the vCPU), and, for
+``robot``, every gap of the loop's I/O thread (over a period and 1 ms between two of its runs)
+with the absence in it: the platform's gap where the absence leaves no more than a period and
+1 ms; both over the trials (where the bridge configures and activates the loop, its thread
+waits on the devices' boot, which is no gap of the loop).
+
 A session passes issue 28's acceptance if ``gap_ms`` is under two periods, ``jitter_p99_ms``
 under 1 ms and it had no FATAL event; the printout gives each variant's medians over the
 sessions, the worst session, and how many sessions passed.
@@ -82,11 +93,21 @@ import sys
 import tempfile
 import threading
 import time
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from common import describe_machine, on_this_machine, trial_cpu_shares
+from common import (
+    LOOP_SUMMARY,
+    describe_machine,
+    on_this_machine,
+    raise_softirq_threads,
+    restore_threads,
+    trial_cpu_shares,
+)
+from kernel_trace import GAP_SLACK, TRACE_FIGURES, CpuTrace, only_other_thread, trace_figures
+from witness import Witness
 
 from exo_has_bringup.analysis import SessionData, rates, read_session, tracking
 from exo_has_bringup.plan import SessionConfig
@@ -106,6 +127,11 @@ SIDE = {'plants': ('plants', 'pd_controller', 'watchdog'),
         'robot': ('robot_loop', 'robot_bridge')}
 #: Issue 28's acceptance: longest gap under this many periods, jitter p99 under this [ms].
 GAP_PERIODS, JITTER_MS = 2.0, 1.0
+#: A witness wake-up later than this [ms] is a stall of the platform.
+STALL_MS = 1.0
+#: The trace's buffer per CPU [MB]: a session on a busy CPU at 1 kHz.
+TRACE_MB = 300
+
 
 #: How long a joiner spins once it has made its subscription [s].
 JOINER_SPIN = 1.0
@@ -130,12 +156,6 @@ node.destroy_node()
 rclpy.shutdown()
 """
 
-LOOP_SUMMARY = re.compile(
-    r'robot loop stopped: (?P<periods>\d+) periods, (?P<missed>\d+) missed, (?P<late>\d+) late '
-    r'by over half a period, lateness p99 (?P<p99>[\d.]+) ms p99\.9 (?P<p999>[\d.]+) ms max '
-    r'(?P<max>[\d.]+) ms; longest gap between bus commands (?P<gap>[\d.]+) ms; cycle compute '
-    r'max (?P<compute>[\d.]+) ms; datagrams dropped (?P<dropped>\d+), refused (?P<refused>\d+)')
-
 
 def start_busy(count: int) -> list[subprocess.Popen[bytes]]:
     """Start ``count`` processes that spin, the i-th pinned to core i modulo the cores.
@@ -149,35 +169,6 @@ def start_busy(count: int) -> list[subprocess.Popen[bytes]]:
         os.sched_setaffinity(process.pid, {cores[index % len(cores)]})
         busy.append(process)
     return busy
-
-
-def raise_softirq_threads(cpus: frozenset[int], priority: int) -> dict[int, int]:
-    """Put each CPU's ``ksoftirqd`` under SCHED_FIFO ``priority``; return their old policies.
-
-    With a busy process on the loop's CPU, the kernel's softirq thread there (SCHED_OTHER)
-    waits its turn behind it, and the network work deferred to it (the simulated bus's UDP)
-    piles up until an interrupt's exit or the loop's own send runs it: the loop ran ~3.5 ms
-    late for stretches. Under SCHED_FIFO one level under the loop it runs at once; PREEMPT_RT
-    runs softirqs in such threads by design.
-    """
-    names = {f'ksoftirqd/{cpu}' for cpu in cpus}
-    saved = {}
-    for comm in Path('/proc').glob('[0-9]*/comm'):
-        try:
-            name = comm.read_text().strip()
-        except OSError:
-            continue
-        if name in names:
-            pid = int(comm.parent.name)
-            saved[pid] = os.sched_getscheduler(pid)
-            os.sched_setscheduler(pid, os.SCHED_FIFO, os.sched_param(priority))
-    return saved
-
-
-def restore_threads(saved: dict[int, int]) -> None:
-    """Give the threads of :func:`raise_softirq_threads` their policies back (priority 0)."""
-    for pid, policy in saved.items():
-        os.sched_setscheduler(pid, policy, os.sched_param(0))
 
 
 class Joiners:
@@ -285,8 +276,11 @@ def robot_figures(session: Session, data: SessionData,
     statuses = loop_statuses(session.bag)
     # The last status before the trials and the first after them: their counts differ by
     # those of the trials (and of up to a diagnostics period either side).
-    before = [values for stamp, values in statuses if stamp <= trials[0]]
-    after = [values for stamp, values in statuses if stamp >= trials[1]]
+    # Where the recorder stopped before the next status, the last one stands for it.
+    before = [values for stamp, values in statuses if stamp <= trials[0]] \
+        or [values for _, values in statuses[:1]]
+    after = [values for stamp, values in statuses if stamp >= trials[1]] \
+        or [values for _, values in statuses[-1:]]
     if before and after:
         missed = float(after[0]['missed']) - float(before[-1]['missed'])
         dropped = float(after[0]['datagrams dropped']) - float(before[-1]['datagrams dropped'])
@@ -312,20 +306,25 @@ def run(hardware: str, controller_priority: int, folder: Path,
         MOTIONS, durations, args.rate, hardware=hardware, can_bitrate=args.bitrate,
         robot_cpus=args.robot_cpus,
         realtime_priority=args.realtime_priority, node_arguments=arguments), folder)
-    joiners = Joiners(args.joiner_period, folder / 'joiners') if args.joiner_period else None
-    if joiners is not None:
-        joiners.__enter__()
-    try:
+    joiners: Joiners | None = None
+    with ExitStack() as stack:
+        if args.joiner_period:
+            joiners = stack.enter_context(Joiners(args.joiner_period, folder / 'joiners'))
+        witness = stack.enter_context(Witness(witness_cpus(args), args.witness_priority)) \
+            if args.witness_priority else None
+        trace = stack.enter_context(CpuTrace(witness_cpus(args), TRACE_MB)) \
+            if args.trace else None
+        tid = None
         session.start(show=lambda line: None)
         try:
             shares = trial_cpu_shares(session, sum(durations))
+            if trace is not None and hardware == 'robot':  # the loop's I/O thread
+                tid = only_other_thread(session.processes['robot_loop'].process.pid)
         finally:
             session.stop()
-    finally:
-        if joiners is not None:
-            joiners.__exit__()
     assert session.bag is not None
     data = read_session(session.bag)
+    clock_offset = time.time() - time.monotonic()  # the bag's clock less the trace's
     windows = [(name, start + (args.walk_from if name.endswith('walk') else 0.0), end)
                for name, start, end in segments_of(MOTIONS, durations)]
     rows = tracking(data, windows)
@@ -360,7 +359,25 @@ def run(hardware: str, controller_priority: int, folder: Path,
                                         if k not in SIDE[hardware]), 1),
         'joiners': None if joiners is None else {'started': joiners.started,
                                                  'heard': joiners.heard},
+        **({} if witness is None else witnessed(witness, trials)),
+        **({} if trace is None else trace_figures(
+            trace, tid, period, args.witness_priority,
+            (trials[0] - clock_offset, trials[1] - clock_offset))),
     }
+
+
+def witness_cpus(args: argparse.Namespace) -> frozenset[int]:
+    """Return the CPUs the witness watches: the robot's, else all."""
+    return parse_cpus(args.robot_cpus) if args.robot_cpus else \
+        frozenset(range(os.cpu_count() or 1))
+
+
+def witnessed(witness: Witness, trials: tuple[float, float]) -> dict[str, float]:
+    """Return the witness's figures over the trials (wall-clock times [s])."""
+    stalls = witness.stalls(*trials)
+    return {'witness_max_ms': stalls.max_ms, 'witness_p99_ms': stalls.p99_ms,
+            'witness_stalls': float(len(stalls.late)),
+            'steal_ms': 1e3 * sum(witness.steal.values())}
 
 
 #: Figures summarised per variant: key, label, format; each as median (worst).
@@ -376,7 +393,12 @@ FIGURES = (('gap_ms', 'longest gap between bus commands [ms]', '.1f'),
            ('dropped_in_trials', 'loop: datagrams dropped in the trials', '.0f'),
            ('cpu_side_percent', 'CPU of its own processes [% of a core]', '.1f'),
            ('cpu_shared_percent', 'CPU of the shared processes [% of a core]', '.1f'),
-           ('state_rate_hz', 'state rate, lowest joint [Hz] (worst: lowest)', '.1f'))
+           ('state_rate_hz', 'state rate, lowest joint [Hz] (worst: lowest)', '.1f'),
+           ('witness_max_ms', 'witness: latest wake-up [ms]', '.1f'),
+           ('witness_p99_ms', 'witness: lateness p99 [ms]', '.2f'),
+           ('witness_stalls', f'witness: wake-ups over {STALL_MS:g} ms late', '.0f'),
+           ('steal_ms', "witness: steal time of the robot's CPUs [ms]", '.0f'),
+           *TRACE_FIGURES)
 
 
 def summarise(runs: list[dict[str, Any]], args: argparse.Namespace
@@ -403,15 +425,20 @@ def summarise(runs: list[dict[str, Any]], args: argparse.Namespace
             'sessions': len(mine), 'passed': sum(r['passed'] for r in mine),
             'fatal_events': sum(r['fatal_events'] for r in mine),
             'figures': figures, 'cpu_percent': cpu, 'tracking_deg': tracking_summary}
+        if all('loop_gaps' in r for r in mine):
+            summary[name]['traced'] = {
+                'gaps': int(sum(r['loop_gaps'] for r in mine)),
+                'platform': int(sum(r['loop_gaps_platform'] for r in mine)),
+                'own_max_ms': max(r['loop_gap_own_max_ms'] for r in mine)}
     return summary
 
 
 def report(summary: dict[str, dict[str, Any]], args: argparse.Namespace,
-           machine: dict[str, object]) -> list[str]:
+           machine: dict[str, object], command: str) -> list[str]:
     """Return the printout: figures per variant, acceptance, CPU by process, tracking."""
     period_ms = 1e3 / args.rate
     variants = list(summary)
-    lines = [f'bench/closed_loop.py {" ".join(sys.argv[1:])}: {machine}',
+    lines = [f'{command}: {machine}',
              f'{args.rate:g} Hz (period {period_ms:g} ms), busy processes {args.busy}, a '
              f'joiner every {args.joiner_period or "-"} s; per variant the median over the '
              'sessions (and the worst session)',
@@ -437,6 +464,12 @@ def report(summary: dict[str, dict[str, Any]], args: argparse.Namespace,
         cpu = ', '.join(f'{process} {share:.1f}' for process, share in s['cpu_percent'].items())
         lines.append(f'{name}: {verdict} ({s["passed"]} of {s["sessions"]} sessions); CPU '
                      f'median [% of a core]: {cpu}')
+        if 'traced' in s:
+            t = s['traced']
+            lines.append(
+                f"{name}: of the loop's {t['gaps']} gaps in the trials (over a period and "
+                f"{GAP_SLACK * 1e3:g} ms), {t['platform']} were filled by its CPU's absence; "
+                f"the others' longest, net of it, {t['own_max_ms']:.1f} ms")
     lines += ['tracking error [deg], median over the sessions (and the worst peak of any): '
               + ' | '.join(variants),
               f'{"joint trial":24s}' + ' |'.join(
@@ -488,10 +521,29 @@ def main() -> None:
                         help='CAN bit rate [bit/s] the masters judge their bus load at '
                              '(default: %(default)s, classic CAN, at most about 370 Hz for 4 '
                              'joints; the simulated bus has none of its own)')
+    parser.add_argument('--witness-priority', type=int, default=0, metavar='N',
+                        help='run the witness (bench/witness.py: cyclictest) at SCHED_FIFO N '
+                             'on the --robot-cpus (all CPUs if none) through each session, '
+                             "to tell the platform's stalls from the loop's (0: none)")
+    parser.add_argument('--trace', action='store_true',
+                        help="trace the robot's CPU through each session (bench/kernel_trace.py"
+                             '; root, one --robot-cpus and the witness needed): which of the '
+                             "loop's gaps its CPU's absence fills")
     parser.add_argument('--folder', type=Path,
                         help="keep each session's folder (bag, logs, joiners' logs) under this "
                              'directory (default: a temporary one, removed)')
+    parser.add_argument('--summarise', metavar='NAME',
+                        help='only summarise bench/results/NAME.json again (its runs, its '
+                             'arguments) into NAME.txt, as this script now reports')
     args = parser.parse_args()
+    if args.summarise:
+        saved = json.loads((RESULTS / f'{args.summarise}.json').read_text())
+        write_report(saved['runs'], argparse.Namespace(**saved['arguments']),
+                     saved['machine'], saved['command'])
+        return
+    if args.trace and not (args.witness_priority and args.robot_cpus
+                           and len(parse_cpus(args.robot_cpus)) == 1):
+        parser.error('--trace needs the witness (--witness-priority) and one --robot-cpus')
     priorities = args.controller_priority or [args.realtime_priority]
     # What takes turns: each hardware, with each of the controller's priorities (the robot
     # side has no controller node).
@@ -523,14 +575,19 @@ def main() -> None:
         for process in busy:
             process.kill()
             process.wait()
-    machine = describe_machine()
+    write_report(runs, args, describe_machine(),
+                 f'bench/closed_loop.py {" ".join(sys.argv[1:])}')
+
+
+def write_report(runs: list[dict[str, Any]], args: argparse.Namespace,
+                 machine: dict[str, object], command: str) -> None:
+    """Summarise the runs; write bench/results/NAME.{json,txt} and print the report."""
     summary = summarise(runs, args)
-    lines = report(summary, args, machine)
+    lines = report(summary, args, machine, command)
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / f'{args.results}.json').write_text(json.dumps(
-        {'machine': machine, 'command': f'bench/closed_loop.py {" ".join(sys.argv[1:])}',
-         'arguments': vars(args), 'summary': summary, 'runs': runs}, indent=1, default=str)
-        + '\n')
+        {'machine': machine, 'command': command, 'arguments': vars(args), 'summary': summary,
+         'runs': runs}, indent=1, default=str) + '\n')
     (RESULTS / f'{args.results}.txt').write_text('\n'.join(lines) + '\n')
     print('\n'.join(lines))
 

@@ -4,14 +4,26 @@ Runs the simulated CAN devices and the robot loop (``robot_main --activate``) on
 bus of their own for ``--seconds``, a process sending a constant reference to the loop's socket
 at 50 Hz (``exo_has_bringup/test/robot_reference_sender.py``), and ``--busy`` processes that
 spin, the i-th pinned to core i. The loop and the devices may be kept to CPUs of their own
-(``--loop-cpus``, ``--devices-cpus``) and given SCHED_FIFO priorities. Prints the loop's closing
-summary (periods, missed, lateness p99 / p99.9 / max, longest gap, cycle compute max). What else
-runs on the machine is up to the caller: bench/README.md, "The robot side against the old
-chain", ran it beside an ``exo-has demo`` on another domain (``taskset -c 0 exo-has demo``),
-to see what a ROS session's traffic does to the loop.
+(``--loop-cpus``, ``--devices-cpus``) and given SCHED_FIFO priorities. The variants
+(``--memory locked unlocked``: the loop's ``--lock-memory`` or ``--no-lock-memory``) take
+turns ``--repeats`` times, so that they share the machine's moods.
 
-Run (in ``./run shell``, as root for SCHED_FIFO): ``python bench/robot_loop_alone.py --rate 200
---seconds 15 --devices-priority 19 --loop-priority 20 --busy 2 --loop-cpus 1 --devices-cpus 1``.
+With ``--witness-priority N`` a witness (:mod:`witness`: cyclictest under SCHED_FIFO N, above the
+loop, on the loop's CPUs, waking every 1 ms) runs through each run. With ``--trace`` as well
+(root; one ``--loop-cpus``), the kernel's trace of that CPU (:mod:`kernel_trace`), from the
+loop's activation to the end of the run, says when the loop's thread ran and when the CPU itself
+was absent (no event for over 1.5 ms, with the witness's timer due every 1 ms): each gap of the
+loop (over a period and 1 ms between two runs of its thread) is the platform's where the
+absence fills all but a period and 1 ms of it, else the loop's own. What else runs on the
+machine is up to the caller: bench/README.md, "The robot side against the old chain", ran it
+beside an ``exo-has demo`` on another domain (``taskset -c 0 exo-has demo``), to see what a ROS
+session's traffic does.
+
+Prints per run the loop's closing summary and the witness's figures, then per variant the
+medians (and the worst run). Run (in ``./run shell``, as root for SCHED_FIFO and mlockall):
+``python bench/robot_loop_alone.py --rate 200 --seconds 60 --repeats 5 --busy 2 --loop-cpus 1
+--devices-cpus 1 --softirq-priority 19 --witness-priority 21 --trace --results
+robot_loop_memory``.
 """
 
 from __future__ import annotations
@@ -22,15 +34,26 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
+from contextlib import ExitStack
 from pathlib import Path
+from typing import Any
 
-from exo_has_bringup.robot_exchange import bridge_end
+import numpy as np
+from common import LOOP_SUMMARY, raise_softirq_threads, restore_threads, write_results
+from kernel_trace import CpuTrace, only_other_thread, trace_figures
+from witness import Witness
+
+from exo_has_bringup.robot_exchange import DatagramExchange, bridge_end
+from exo_has_common.realtime import parse_cpus
 from exo_has_driver.hardware.bus import random_multicast_group
 
 SENDER = Path(__file__).resolve().parents[1] / 'exo_has_bringup' / 'test' / \
     'robot_reference_sender.py'
 REFERENCE = ('left_hip=0.2', 'left_knee=0.3', 'right_hip=0.2', 'right_knee=0.3')  # rad
+#: A witness wake-up later than this [ms] is a platform stall.
+STALL_MS = 1.0
 
 
 def pinned(cpus: str, command: list[str]) -> list[str]:
@@ -38,15 +61,22 @@ def pinned(cpus: str, command: list[str]) -> list[str]:
     return ['taskset', '-c', cpus, *command] if cpus else command
 
 
-def run(args: argparse.Namespace) -> str:
-    """Run the devices, the loop, the sender and the busy processes; return the loop's summary."""
+def run(args: argparse.Namespace, memory: str) -> dict[str, Any]:
+    """Run the devices, the loop, the sender and the busy processes once; return the figures."""
     cores = os.cpu_count() or 1
     busy = [subprocess.Popen(['taskset', '-c', str(i % cores), sys.executable, '-c',
                               'while True: pass']) for i in range(args.busy)]
     group = random_multicast_group()
     started: list[subprocess.Popen[str]] = []
-    with tempfile.TemporaryDirectory(prefix='exo-alone-') as directory:
+    witness_cpus = parse_cpus(args.loop_cpus) if args.loop_cpus else \
+        frozenset(range(cores))
+    with tempfile.TemporaryDirectory(prefix='exo-alone-') as directory, ExitStack() as stack:
         bridge = bridge_end(Path(directory))
+        stack.callback(bridge.close)
+        witness = stack.enter_context(Witness(witness_cpus, args.witness_priority)) \
+            if args.witness_priority else None
+        # From before the loop starts; judged from its activation on.
+        trace = stack.enter_context(CpuTrace(witness_cpus)) if args.trace else None
         try:
             devices = subprocess.Popen(pinned(args.devices_cpus, [
                 sys.executable, '-m', 'exo_has_driver.devices.main', '--interface',
@@ -60,18 +90,31 @@ def run(args: argparse.Namespace) -> str:
                 sys.executable, '-m', 'exo_has_bringup.robot_main', '--interface',
                 'udp_multicast', '--channel', group, '--rate', f'{args.rate}',
                 '--bitrate', f'{args.bitrate}', '--socket-dir', directory,
-                '--realtime-priority', f'{args.loop_priority}', '--activate']),
+                '--realtime-priority', f'{args.loop_priority}', '--activate',
+                '--lock-memory' if memory == 'locked' else '--no-lock-memory']),
                 stdout=subprocess.PIPE, text=True)
             started.append(loop)
             assert loop.stdout is not None
-            loop.stdout.readline()  # robot loop ready
+            loop.stdout.readline()  # robot loop ready: configured and activated
+            ready = time.monotonic()
+            resident_mb = float('nan')
             sender = subprocess.Popen([sys.executable, str(SENDER), directory, '50', *REFERENCE],
                                       stdout=subprocess.PIPE, text=True)
             started.append(sender)
+            begin = time.time()
             deadline = time.monotonic() + args.seconds
-            while time.monotonic() < deadline:
-                bridge.receive()  # what the loop sends, taken as a bridge would
-                time.sleep(0.005)
+            # What the loop sends is taken, as a bridge would, while this thread reads a trace.
+            drained = threading.Event()
+            drainer = threading.Thread(target=drain, args=(bridge, drained), daemon=True)
+            drainer.start()
+            stack.callback(drainer.join)
+            stack.callback(drained.set)
+            time.sleep(1.0)
+            resident_mb = resident(loop.pid)
+            tid = only_other_thread(loop.pid)  # the loop's I/O thread
+            time.sleep(max(0.0, deadline - time.monotonic()))
+            end = time.time()
+            running = (ready, time.monotonic())
             sender.kill()
             loop.send_signal(signal.SIGTERM)
             output = loop.communicate(timeout=30.0)[0]
@@ -80,25 +123,128 @@ def run(args: argparse.Namespace) -> str:
                 if process.poll() is None:
                     process.kill()
                 process.wait()
-            bridge.close()
-    lines = [line for line in output.splitlines() if line.startswith('robot loop stopped')]
-    return lines[-1] if lines else output
+    found = LOOP_SUMMARY.search(output)
+    if found is None:
+        msg = f'the robot loop printed no summary: {output[-2000:]}'
+        raise RuntimeError(msg)
+    figures: dict[str, Any] = {'memory': memory, 'resident_mb': resident_mb,
+                               'summary': found.group(0),
+                               **{key: float(value) for key, value in found.groupdict().items()}}
+    if witness is not None:
+        stalls = witness.stalls(begin, end)
+        figures.update(witness_max_ms=stalls.max_ms, witness_p99_ms=stalls.p99_ms,
+                       witness_stalls=len(stalls.late),
+                       steal_ms=1e3 * sum(witness.steal.values()))
+    if trace is not None:
+        figures.update(trace_figures(trace, tid, 1.0 / args.rate, args.witness_priority,
+                                     running))
+    return figures
+
+
+def drain(bridge: DatagramExchange, done: threading.Event) -> None:
+    """Take what the loop sends, as a bridge would, until ``done`` is set."""
+    while not done.is_set():
+        if bridge.wait(0.1):
+            bridge.receive()
+
+
+def resident(pid: int) -> float:
+    """Resident memory of a process [MB] (VmRSS), NaN if it is gone."""
+    try:
+        status = Path(f'/proc/{pid}/status').read_text()
+    except OSError:
+        return float('nan')
+    kilobytes = next((line.split()[1] for line in status.splitlines()
+                      if line.startswith('VmRSS:')), 'nan')
+    return float(kilobytes) / 1024.0
+
+
+#: Figures summarised per variant: key, label, format; each as median (worst).
+FIGURES = (('p99', 'lateness p99 [ms]', '.1f'), ('max', 'lateness max [ms]', '.1f'),
+           ('gap', 'longest gap between bus commands [ms]', '.1f'),
+           ('compute', 'cycle compute max [ms]', '.2f'),
+           ('late', 'cycles late by over half a period', '.0f'),
+           ('missed', 'missed periods', '.0f'),
+           ('loop_gaps', 'trace: gaps of the loop (over a period + 1 ms)', '.0f'),
+           ('loop_gaps_platform', "... of them filled by the CPU's absence", '.0f'),
+           ('loop_gap_max_ms', 'trace: longest gap of the loop [ms]', '.1f'),
+           ('loop_gap_own_max_ms', 'trace: longest gap net of absence [ms]', '.1f'),
+           ('absent_spans', 'trace: CPU absent over 1.5 ms, spans', '.0f'),
+           ('absent_ms', 'trace: CPU absent, total [ms]', '.0f'),
+           ('absent_longest_ms', 'trace: CPU absent, longest [ms]', '.1f'),
+           ('witness_max_ms', 'witness: latest wake-up [ms]', '.1f'),
+           ('witness_p99_ms', 'witness: lateness p99 [ms]', '.2f'),
+           ('witness_stalls', f'witness: wake-ups over {STALL_MS:g} ms late', '.0f'),
+           ('steal_ms', "witness: steal time of the loop's CPUs [ms]", '.0f'),
+           ('resident_mb', "the loop's resident memory [MB]", '.0f'))
+
+
+def report(runs: list[dict[str, Any]], args: argparse.Namespace) -> list[str]:
+    """Each run's summary, then per variant the median (and the worst run) of each figure."""
+    lines = [f'bench/robot_loop_alone.py {" ".join(sys.argv[1:])}']
+    lines += [f'{r["memory"]:8s} {r["summary"]}; witness max {r.get("witness_max_ms", 0):.1f} '
+              f'ms; gaps {r.get("loop_gaps", "-")}, the platform\'s '
+              f'{r.get("loop_gaps_platform", "-")}' for r in runs]
+    lines.append(f'{"figure":48s}' + ''.join(f' | {m:>16s}' for m in args.memory))
+    for key, label, form in FIGURES:
+        cells = []
+        for memory in args.memory:
+            values = [r[key] for r in runs if r['memory'] == memory and key in r]
+            cells.append(f'{np.median(values):{form}} ({max(values):{form}})' if values
+                         else '-')
+        if any(cell != '-' for cell in cells):
+            lines.append(f'{label:48s}' + ''.join(f' | {cell:>16s}' for cell in cells))
+    return lines
 
 
 def main() -> None:
-    """Parse the arguments, run once, print the loop's summary."""
+    """Parse the arguments, run the variants in turn, print and write the figures."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--rate', type=float, default=200.0, help='loop rate [Hz]')
-    parser.add_argument('--seconds', type=float, default=15.0, help='how long it runs [s]')
+    parser.add_argument('--seconds', type=float, default=15.0, help='how long each run is [s]')
+    parser.add_argument('--repeats', type=int, default=1, help='runs of each variant')
+    parser.add_argument('--memory', nargs='+', choices=('locked', 'unlocked'),
+                        default=['locked'], help="the loop's memory: locked (mlockall, its "
+                        'default) or not; each in turn')
     parser.add_argument('--devices-priority', type=int, default=19)
     parser.add_argument('--loop-priority', type=int, default=20)
+    parser.add_argument('--witness-priority', type=int, default=0, metavar='N',
+                        help="run the witness (cyclictest) at SCHED_FIFO N on the loop's CPUs "
+                             '(0: none)')
+    parser.add_argument('--trace', action='store_true',
+                        help="trace the loop's CPU (tracefs, root; one --loop-cpus and the "
+                             "witness needed): which gaps the CPU's absence fills")
     parser.add_argument('--busy', type=int, default=2, help='spinning processes, one a core')
     parser.add_argument('--loop-cpus', default='', help='CPUs of the loop (taskset -c)')
     parser.add_argument('--devices-cpus', default='', help='CPUs of the devices (taskset -c)')
+    parser.add_argument('--softirq-priority', type=int, default=0, metavar='N',
+                        help="SCHED_FIFO priority of the --loop-cpus' ksoftirqd for the run "
+                             '(0: left as they are)')
     parser.add_argument('--bitrate', type=int, default=5_000_000,
                         help='bit rate [bit/s] the master judges its bus load at')
+    parser.add_argument('--results', default='', metavar='NAME',
+                        help='write bench/results/NAME.{json,txt} (default: print only)')
     args = parser.parse_args()
-    print(f'bench/robot_loop_alone.py {" ".join(sys.argv[1:])}: {run(args)}', flush=True)
+    if args.trace and not (args.witness_priority and args.loop_cpus
+                           and len(parse_cpus(args.loop_cpus)) == 1):
+        parser.error('--trace needs the witness (--witness-priority) and one --loop-cpus')
+    runs = []
+    softirq = raise_softirq_threads(parse_cpus(args.loop_cpus), args.softirq_priority) \
+        if args.softirq_priority and args.loop_cpus else {}
+    try:
+        for _ in range(args.repeats):
+            for memory in args.memory:
+                runs.append(run(args, memory))
+                print(f'{memory}: {runs[-1]}', flush=True)
+    finally:
+        restore_threads(softirq)
+    lines = report(runs, args)
+    if args.results:
+        write_results(args.results, {'command': f'bench/robot_loop_alone.py '
+                                                f'{" ".join(sys.argv[1:])}',
+                                     'arguments': vars(args), 'runs': runs}, lines)
+    else:
+        print('\n'.join(lines))
 
 
 if __name__ == '__main__':

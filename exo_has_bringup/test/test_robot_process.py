@@ -140,6 +140,13 @@ def test_the_loop_process_tracks_a_reference_and_holds_when_its_sender_dies(sock
                         '--realtime-priority', f'{REALTIME_PRIORITY}', '--activate'])
         loop.expect('robot loop ready')
         assert bridge.pump(5.0, lambda: all(bridge.states.values()))
+        # Its memory locked where permitted (root here), and no threads but its main one and
+        # the master's I/O thread (no BLAS threads).
+        status = Path(f'/proc/{loop.popen.pid}/status').read_text()
+        locked = re.search(r'VmLck:\s+(\d+) kB', status)
+        assert locked is not None and (int(locked.group(1)) > 0 or any(
+            'cannot lock memory' in line for line in loop.output)), loop.output
+        assert len(list(Path(f'/proc/{loop.popen.pid}/task').iterdir())) == 2
         # Each joint is sent 5 deg from where it stood, toward the middle of its range.
         start = {joint: bridge.angle(joint) for joint in JOINT_NAMES}
         reference = {}

@@ -2,12 +2,26 @@
 
 from __future__ import annotations
 
+import ctypes
+import errno
 import os
+import subprocess
+import sys
 import threading
 
 import pytest
 
-from exo_has_common.realtime import MAX_PRIORITY, parse_cpus, set_cpus, set_realtime_priority
+from exo_has_common.realtime import (
+    M_MMAP_MAX,
+    M_TRIM_THRESHOLD,
+    MAX_PRIORITY,
+    MCL_CURRENT,
+    MCL_FUTURE,
+    lock_memory,
+    parse_cpus,
+    set_cpus,
+    set_realtime_priority,
+)
 
 
 def _policy_of_a_thread_set_to(priority: int) -> tuple[str | None, int, int]:
@@ -79,3 +93,55 @@ def test_cpus_keep_the_calling_thread_and_those_it_starts_afterwards() -> None:
         os.sched_setaffinity(0, before)
     assert set_cpus(frozenset()) is None  # none asked: left as it is
     assert os.sched_getaffinity(0) == before
+
+
+class _CLibrary:
+    """A stand-in for the C library: records the calls, fails mlockall with ``error``."""
+
+    def __init__(self, error: int = 0) -> None:
+        self.error = error
+        self.calls: list[tuple[str, int, int]] = []
+
+    def mlockall(self, flags: int) -> int:
+        self.calls.append(('mlockall', flags, 0))
+        if self.error:
+            ctypes.set_errno(self.error)
+            return -1
+        return 0
+
+    def mallopt(self, parameter: int, value: int) -> int:
+        self.calls.append(('mallopt', parameter, value))
+        return 1
+
+
+def test_locking_memory_locks_present_and_future_pages_and_keeps_the_heap() -> None:
+    libc = _CLibrary()
+    assert lock_memory(libc) is None
+    assert libc.calls == [('mlockall', MCL_CURRENT | MCL_FUTURE, 0),
+                          ('mallopt', M_TRIM_THRESHOLD, -1), ('mallopt', M_MMAP_MAX, 0)]
+
+
+@pytest.mark.parametrize(('error', 'wording'), [(errno.EPERM, 'no permission'),
+                                                (errno.ENOMEM, 'memlock limit'),
+                                                (errno.EINVAL, os.strerror(errno.EINVAL))])
+def test_memory_that_cannot_be_locked_is_reported_with_the_reason(error, wording) -> None:
+    libc = _CLibrary(error)
+    message = lock_memory(libc)
+    assert message is not None
+    assert wording in message
+    assert 'memory not locked' in message
+    assert [call[0] for call in libc.calls] == ['mlockall']  # the heap left as it was
+
+
+@pytest.mark.process
+def test_a_process_that_locks_its_memory_has_it_locked_where_permitted() -> None:
+    script = ('from exo_has_common.realtime import lock_memory\n'
+              'print(lock_memory())\n'
+              "print(next(line.split()[1] for line in open('/proc/self/status') "
+              "if line.startswith('VmLck:')))\n")
+    message, locked_kb = subprocess.run([sys.executable, '-c', script], capture_output=True,
+                                        text=True, check=True, timeout=60).stdout.splitlines()
+    if message != 'None':
+        assert 'cannot lock memory' in message  # no CAP_IPC_LOCK and a small memlock limit
+        return
+    assert int(locked_kb) > 1024  # the interpreter's own pages at least
