@@ -107,7 +107,7 @@ from common import (
     trial_cpu_shares,
 )
 from kernel_trace import GAP_SLACK, TRACE_FIGURES, CpuTrace, only_other_thread, trace_figures
-from witness import Witness
+from witness import WITNESS_FIGURES, Witness
 
 from exo_has_bringup.analysis import SessionData, rates, read_session, tracking
 from exo_has_bringup.plan import SessionConfig
@@ -127,8 +127,6 @@ SIDE = {'plants': ('plants', 'pd_controller', 'watchdog'),
         'robot': ('robot_loop', 'robot_bridge')}
 #: Issue 28's acceptance: longest gap under this many periods, jitter p99 under this [ms].
 GAP_PERIODS, JITTER_MS = 2.0, 1.0
-#: A witness wake-up later than this [ms] is a stall of the platform.
-STALL_MS = 1.0
 #: The trace's buffer per CPU [MB]: a session on a busy CPU at 1 kHz.
 TRACE_MB = 300
 
@@ -359,7 +357,7 @@ def run(hardware: str, controller_priority: int, folder: Path,
                                         if k not in SIDE[hardware]), 1),
         'joiners': None if joiners is None else {'started': joiners.started,
                                                  'heard': joiners.heard},
-        **({} if witness is None else witnessed(witness, trials)),
+        **({} if witness is None else witness.figures(*trials)),
         **({} if trace is None else trace_figures(
             trace, tid, period, args.witness_priority,
             (trials[0] - clock_offset, trials[1] - clock_offset))),
@@ -370,14 +368,6 @@ def witness_cpus(args: argparse.Namespace) -> frozenset[int]:
     """Return the CPUs the witness watches: the robot's, else all."""
     return parse_cpus(args.robot_cpus) if args.robot_cpus else \
         frozenset(range(os.cpu_count() or 1))
-
-
-def witnessed(witness: Witness, trials: tuple[float, float]) -> dict[str, float]:
-    """Return the witness's figures over the trials (wall-clock times [s])."""
-    stalls = witness.stalls(*trials)
-    return {'witness_max_ms': stalls.max_ms, 'witness_p99_ms': stalls.p99_ms,
-            'witness_stalls': float(len(stalls.late)),
-            'steal_ms': 1e3 * sum(witness.steal.values())}
 
 
 #: Figures summarised per variant: key, label, format; each as median (worst).
@@ -394,10 +384,7 @@ FIGURES = (('gap_ms', 'longest gap between bus commands [ms]', '.1f'),
            ('cpu_side_percent', 'CPU of its own processes [% of a core]', '.1f'),
            ('cpu_shared_percent', 'CPU of the shared processes [% of a core]', '.1f'),
            ('state_rate_hz', 'state rate, lowest joint [Hz] (worst: lowest)', '.1f'),
-           ('witness_max_ms', 'witness: latest wake-up [ms]', '.1f'),
-           ('witness_p99_ms', 'witness: lateness p99 [ms]', '.2f'),
-           ('witness_stalls', f'witness: wake-ups over {STALL_MS:g} ms late', '.0f'),
-           ('steal_ms', "witness: steal time of the robot's CPUs [ms]", '.0f'),
+           *WITNESS_FIGURES,
            *TRACE_FIGURES)
 
 

@@ -30,12 +30,14 @@ def on_this_machine() -> None:
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     configure_transport()
 
+
 #: The robot loop's closing line (exo_has_bringup.robot_main), its figures by name.
 LOOP_SUMMARY = re.compile(
     r'robot loop stopped: (?P<periods>\d+) periods, (?P<missed>\d+) missed, (?P<late>\d+) late '
     r'by over half a period, lateness p99 (?P<p99>[\d.]+) ms p99\.9 (?P<p999>[\d.]+) ms max '
     r'(?P<max>[\d.]+) ms; longest gap between bus commands (?P<gap>[\d.]+) ms; cycle compute '
     r'max (?P<compute>[\d.]+) ms; datagrams dropped (?P<dropped>\d+), refused (?P<refused>\d+)')
+
 
 def raise_softirq_threads(cpus: frozenset[int], priority: int) -> dict[int, int]:
     """Put each CPU's ``ksoftirqd`` under SCHED_FIFO ``priority``; return their old policies.

@@ -42,8 +42,8 @@ from typing import Any
 
 import numpy as np
 from common import LOOP_SUMMARY, raise_softirq_threads, restore_threads, write_results
-from kernel_trace import CpuTrace, only_other_thread, trace_figures
-from witness import Witness
+from kernel_trace import TRACE_FIGURES, CpuTrace, only_other_thread, trace_figures
+from witness import WITNESS_FIGURES, Witness
 
 from exo_has_bringup.robot_exchange import DatagramExchange, bridge_end
 from exo_has_common.realtime import parse_cpus
@@ -52,8 +52,6 @@ from exo_has_driver.hardware.bus import random_multicast_group
 SENDER = Path(__file__).resolve().parents[1] / 'exo_has_bringup' / 'test' / \
     'robot_reference_sender.py'
 REFERENCE = ('left_hip=0.2', 'left_knee=0.3', 'right_hip=0.2', 'right_knee=0.3')  # rad
-#: A witness wake-up later than this [ms] is a platform stall.
-STALL_MS = 1.0
 
 
 def pinned(cpus: str, command: list[str]) -> list[str]:
@@ -97,13 +95,12 @@ def run(args: argparse.Namespace, memory: str) -> dict[str, Any]:
             assert loop.stdout is not None
             loop.stdout.readline()  # robot loop ready: configured and activated
             ready = time.monotonic()
-            resident_mb = float('nan')
             sender = subprocess.Popen([sys.executable, str(SENDER), directory, '50', *REFERENCE],
                                       stdout=subprocess.PIPE, text=True)
             started.append(sender)
             begin = time.time()
             deadline = time.monotonic() + args.seconds
-            # What the loop sends is taken, as a bridge would, while this thread reads a trace.
+            # What the loop sends is taken, as a bridge would, to the end of the run.
             drained = threading.Event()
             drainer = threading.Thread(target=drain, args=(bridge, drained), daemon=True)
             drainer.start()
@@ -131,10 +128,7 @@ def run(args: argparse.Namespace, memory: str) -> dict[str, Any]:
                                'summary': found.group(0),
                                **{key: float(value) for key, value in found.groupdict().items()}}
     if witness is not None:
-        stalls = witness.stalls(begin, end)
-        figures.update(witness_max_ms=stalls.max_ms, witness_p99_ms=stalls.p99_ms,
-                       witness_stalls=len(stalls.late),
-                       steal_ms=1e3 * sum(witness.steal.values()))
+        figures.update(witness.figures(begin, end))
     if trace is not None:
         figures.update(trace_figures(trace, tid, 1.0 / args.rate, args.witness_priority,
                                      running))
@@ -165,17 +159,8 @@ FIGURES = (('p99', 'lateness p99 [ms]', '.1f'), ('max', 'lateness max [ms]', '.1
            ('compute', 'cycle compute max [ms]', '.2f'),
            ('late', 'cycles late by over half a period', '.0f'),
            ('missed', 'missed periods', '.0f'),
-           ('loop_gaps', 'trace: gaps of the loop (over a period + 1 ms)', '.0f'),
-           ('loop_gaps_platform', "... of them filled by the CPU's absence", '.0f'),
-           ('loop_gap_max_ms', 'trace: longest gap of the loop [ms]', '.1f'),
-           ('loop_gap_own_max_ms', 'trace: longest gap net of absence [ms]', '.1f'),
-           ('absent_spans', 'trace: CPU absent over 1.5 ms, spans', '.0f'),
-           ('absent_ms', 'trace: CPU absent, total [ms]', '.0f'),
-           ('absent_longest_ms', 'trace: CPU absent, longest [ms]', '.1f'),
-           ('witness_max_ms', 'witness: latest wake-up [ms]', '.1f'),
-           ('witness_p99_ms', 'witness: lateness p99 [ms]', '.2f'),
-           ('witness_stalls', f'witness: wake-ups over {STALL_MS:g} ms late', '.0f'),
-           ('steal_ms', "witness: steal time of the loop's CPUs [ms]", '.0f'),
+           *TRACE_FIGURES,
+           *WITNESS_FIGURES,
            ('resident_mb', "the loop's resident memory [MB]", '.0f'))
 
 

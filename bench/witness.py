@@ -34,6 +34,13 @@ SAMPLE = re.compile(r'^\s*(\d+):\s*(\d+):\s*(\d+)\s*$')
 NO_LATENCY_TARGET = 2_000_000_000
 #: USER_HZ: the unit of /proc/stat's times.
 TICK = 100.0
+#: A wake-up later than this [ms] is a stall of the platform.
+STALL_MS = 1.0
+#: The witness's figures in the benchmarks' reports: key, label, format.
+WITNESS_FIGURES = (('witness_max_ms', 'witness: latest wake-up [ms]', '.1f'),
+                   ('witness_p99_ms', 'witness: lateness p99 [ms]', '.2f'),
+                   ('witness_stalls', f'witness: wake-ups over {STALL_MS:g} ms late', '.0f'),
+                   ('steal_ms', 'witness: steal time of its CPUs [ms]', '.0f'))
 
 
 def steal_seconds(cpus: frozenset[int]) -> dict[int, float]:
@@ -79,7 +86,7 @@ class Witness:
     """
 
     def __init__(self, cpus: frozenset[int], priority: int, interval: float = 1e-3,
-                 threshold: float = 1e-3) -> None:
+                 threshold: float = STALL_MS * 1e-3) -> None:
         if shutil.which('cyclictest') is None:
             msg = 'the witness needs cyclictest: apt-get install rt-tests'
             raise FileNotFoundError(msg)
@@ -155,14 +162,9 @@ class Witness:
         p99 = sorted(span)[min(len(span) - 1, int(0.99 * len(span)))] if span else 0.0
         return Stalls(wakeups=len(span), max_ms=max(span, default=0.0), p99_ms=p99, late=late)
 
-    def witnessed(self, windows: list[tuple[float, float]], threshold_ms: float,
-                  shift: float = 0.0) -> int:
-        """Count the wall-clock windows (start, end) [s] in which the witness had a stall.
-
-        A stall: a wake-up later than ``threshold_ms`` [ms] due within the window moved by
-        ``shift`` [s]. The same windows shifted (by more than they last) are the control: how
-        often a stall falls in such a window by chance.
-        """
-        return sum(any(late > threshold_ms for _, late in self.stalls(start + shift,
-                                                                        end + shift).late)
-                   for start, end in windows)
+    def figures(self, start: float, end: float) -> dict[str, float]:
+        """Return :data:`WITNESS_FIGURES` between wall-clock times ``start`` and ``end`` [s]."""
+        stalls = self.stalls(start, end)
+        return {'witness_max_ms': stalls.max_ms, 'witness_p99_ms': stalls.p99_ms,
+                'witness_stalls': float(len(stalls.late)),
+                'steal_ms': 1e3 * sum(self.steal.values())}
