@@ -7,7 +7,9 @@ safety valve, a lost heartbeat). A :class:`StopLatch` is the one stop latch of e
 event latches it, and only an explicit reset releases it, which it refuses while a condition
 still holds. The watchdog (:mod:`exo_has_driver.safety`) and the CANopen master's supervision
 (:mod:`exo_has_driver.hardware.supervision`) each hold one; what holds, and when a reset is
-complete (the master first takes its drives out of fault), is theirs to say.
+complete (the master first takes its drives out of fault), is theirs to say. A
+:class:`Clearing` is the one rule for when a reported condition is over: absent for
+:data:`CLEAR_TIME`.
 """
 
 from __future__ import annotations
@@ -16,11 +18,14 @@ import math
 from collections.abc import Hashable, Sequence
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import Generic, TypeVar
 
 #: [s] How long a reported condition must stay absent to be reported cleared (and be reported
 #: again should it return): fifty periods at 200 Hz. One that comes and goes faster (a second
 #: plant's states beside the real one's, a slave's TPDOs lost now and then) stays one condition.
 CLEAR_TIME = 0.25
+#: A condition's key, as its reporter names it.
+Key = TypeVar('Key', bound=Hashable)
 
 
 class SafetyKind(IntEnum):
@@ -133,6 +138,34 @@ class Condition:
     value: float
     limit: float
     text: str
+
+
+class Clearing(Generic[Key]):
+    """The reported conditions that stopped holding, and since when: :data:`CLEAR_TIME`'s rule.
+
+    A reporter (the watchdog's :class:`~exo_has_driver.joint_watch.JointWatch`, the CANopen
+    master's :class:`~exo_has_driver.hardware.supervision.Supervision`) marks a condition it
+    reported :meth:`absent` while it does not hold and :meth:`holds` when it does again (or is
+    forgotten); :meth:`due` names those absent for :data:`CLEAR_TIME`, to be reported cleared.
+    """
+
+    def __init__(self) -> None:
+        self._since: dict[Key, float] = {}
+
+    def holds(self, key: Key) -> None:
+        """Stop timing ``key``: it holds again, or is forgotten without a clear."""
+        self._since.pop(key, None)
+
+    def absent(self, key: Key, t: float) -> None:
+        """Note that ``key`` does not hold at t [s]; its absence counts from the first such t."""
+        self._since.setdefault(key, t)
+
+    def due(self, t: float) -> set[Key]:
+        """Return the keys absent for :data:`CLEAR_TIME` at t [s], and stop timing them."""
+        done = {key for key, since in self._since.items() if t - since >= CLEAR_TIME}
+        for key in done:
+            del self._since[key]
+        return done
 
 
 class StopLatch:

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 from exo_has_driver.events import (
     CLEAR_TIME,
+    Clearing,
     Condition,
     Event,
     Phase,
@@ -119,9 +120,9 @@ class JointWatch:
         # Kinds whose condition holds now.
         self.active: set[SafetyKind] = set()
         # Kinds reported and not cleared since, with what of each was seen (a stroke end's
-        # end) and when last [s], and since when each absent one has been absent [s].
+        # end) and when last [s]; since when each absent one has been absent.
         self.reported: dict[SafetyKind, dict[object, float]] = {}
-        self.absent_since: dict[SafetyKind, float] = {}
+        self.clearing: Clearing[SafetyKind] = Clearing()
         # Kinds held without an event (an over-pressure beside an open valve): they clear
         # silently too.
         self.silent: set[SafetyKind] = set()
@@ -314,7 +315,7 @@ class JointWatch:
         are reported once each, not at every sample.
         """
         self.active.add(kind)
-        self.absent_since.pop(kind, None)
+        self.clearing.holds(kind)
         seen = self.reported.setdefault(kind, {})
         for variant, last in list(seen.items()):
             if t - last >= CLEAR_TIME:
@@ -335,22 +336,20 @@ class JointWatch:
         """Note that a condition does not hold at t [s]: it clears after :data:`CLEAR_TIME`."""
         self.active.discard(kind)
         if kind in self.reported:
-            self.absent_since.setdefault(kind, t)
+            self.clearing.absent(kind, t)
 
     def _forget(self, kind: SafetyKind) -> None:
         """Forget a condition without an event: it is reported anew should it return."""
         self.active.discard(kind)
         self.reported.pop(kind, None)
-        self.absent_since.pop(kind, None)
+        self.clearing.holds(kind)
         self.silent.discard(kind)
 
     def _cleared(self, t: float) -> list[Event]:
         """Report the conditions absent for :data:`CLEAR_TIME` at t [s] as cleared."""
-        done = sorted(kind for kind, since in self.absent_since.items()
-                      if t - since >= CLEAR_TIME)
         events = []
-        for kind in done:
-            del self.absent_since[kind], self.reported[kind]
+        for kind in sorted(self.clearing.due(t)):
+            del self.reported[kind]
             if kind in self.silent:
                 self.silent.discard(kind)
                 continue
@@ -373,7 +372,7 @@ class JointWatch:
             self.active.add(SafetyKind.OVER_PRESSURE)
             self.reported.setdefault(SafetyKind.OVER_PRESSURE, {})[None] = t
             self.silent.add(SafetyKind.OVER_PRESSURE)
-            self.absent_since.pop(SafetyKind.OVER_PRESSURE, None)
+            self.clearing.holds(SafetyKind.OVER_PRESSURE)
             return events
         self._lapse(t, SafetyKind.SAFETY_VALVE_OPEN)
         if pressure > limits.warning_pressure:

@@ -1,6 +1,6 @@
 import math
 
-from exo_has_driver.events import Condition, SafetyKind, Severity, StopLatch
+from exo_has_driver.events import CLEAR_TIME, Clearing, Condition, SafetyKind, Severity, StopLatch
 
 
 def stale(joint='left_hip', age=0.6):
@@ -54,3 +54,23 @@ def test_a_release_names_the_cause_clears_it_and_forgets_the_reported_conditions
     assert math.isnan(released.value) and not latch.latched and latch.cause is None
     assert latch.reported == frozenset()
     assert latch.release().text == 'reset: no stop was latched'
+
+
+def test_a_condition_clears_once_absent_for_the_clear_time_from_its_first_absence():
+    clearing = Clearing()
+    clearing.absent('stale', 1.0)
+    clearing.absent('stale', 1.1)  # still absent: counted from 1.0
+    assert clearing.due(1.0 + CLEAR_TIME - 0.01) == set()
+    assert clearing.due(1.0 + CLEAR_TIME) == {'stale'}
+    assert clearing.due(5.0) == set()  # reported once
+
+
+def test_a_condition_that_holds_again_or_is_forgotten_does_not_clear():
+    clearing = Clearing()
+    clearing.absent('valve', 0.0)
+    clearing.absent('pressure', 0.0)
+    clearing.holds('valve')
+    clearing.holds('pressure')
+    clearing.absent('valve', 0.2)  # absent anew: counted from 0.2
+    assert clearing.due(CLEAR_TIME) == set()
+    assert clearing.due(0.2 + CLEAR_TIME) == {'valve'}

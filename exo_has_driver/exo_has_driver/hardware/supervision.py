@@ -36,7 +36,7 @@ from dataclasses import replace
 
 from exo_has_driver import can_dictionary as cd
 from exo_has_driver.events import (
-    CLEAR_TIME,
+    Clearing,
     Condition,
     Event,
     Phase,
@@ -98,7 +98,7 @@ class Supervision:
         self._reset_until: float | None = None
         # The conditions reported and not cleared, by key, and since when each is absent.
         self._reported: dict[Hashable, Condition] = {}
-        self._absent_since: dict[Hashable, float] = {}
+        self._clearing: Clearing[Hashable] = Clearing()
 
     @property
     def latched(self) -> bool:
@@ -151,7 +151,7 @@ class Supervision:
         """Latch the conditions that hold now; report cleared those absent for CLEAR_TIME."""
         conditions = self.conditions(now, sync_count)
         for condition in conditions:
-            self._absent_since.pop(condition.key, None)
+            self._clearing.holds(condition.key)
             started = self._latch.report_once(condition)
             if started:
                 self._reported[condition.key] = condition
@@ -160,17 +160,17 @@ class Supervision:
         reported = self._latch.reported
         for key in [k for k in self._reported if k not in reported]:
             del self._reported[key]  # forgotten otherwise (a reset): no clear to report
-            self._absent_since.pop(key, None)
-        for key, condition in list(self._reported.items()):
-            if key in holding or not (isinstance(key, tuple) and key[0] in _CONDITION_KEYS):
-                continue
-            since = self._absent_since.setdefault(key, now)
-            if now - since >= CLEAR_TIME:
-                del self._reported[key], self._absent_since[key]
-                self._latch.forget({key})
-                self.events.append(Event(condition.joint, condition.kind, Severity.INFO, _NAN,
-                                         _NAN, self._latch.latched,
-                                         f'cleared: {condition.text}', Phase.CLEAR))
+            self._clearing.holds(key)
+        for key in self._reported:
+            if key not in holding and isinstance(key, tuple) and key[0] in _CONDITION_KEYS:
+                self._clearing.absent(key, now)
+        due = self._clearing.due(now)
+        for key in [k for k in self._reported if k in due]:
+            condition = self._reported.pop(key)
+            self._latch.forget({key})
+            self.events.append(Event(condition.joint, condition.kind, Severity.INFO, _NAN, _NAN,
+                                     self._latch.latched, f'cleared: {condition.text}',
+                                     Phase.CLEAR))
 
     def conditions(self, now: float, sync_count: int) -> list[Condition]:
         """List the fault conditions that hold now: what supervision latches, what forbids a reset.
