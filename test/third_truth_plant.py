@@ -847,7 +847,8 @@ class Draw:
 
 def draw(seed: int, *, effect: str | None = None, size: float | None = None,
          excitation: str | None = None, duration: float = 20.0, rate: float = RATE,
-         brake_force: float | None = None) -> Draw:
+         brake_force: float | None = None, excursion: float = 1.0,
+         charge_pressure: float | None = None) -> Draw:
     """Draw and simulate one record.
 
     Every variate comes from ``numpy.random.default_rng(seed)`` in a fixed order whatever is
@@ -870,6 +871,11 @@ def draw(seed: int, *, effect: str | None = None, size: float | None = None,
         Sample rate [Hz].
     brake_force : float, optional
         Force the brake's force [N].
+    excursion : float
+        Scale of the excitation about mid stroke (its positions and speeds): 0.1 moves the
+        rod over a tenth of the stroke it would, as a rig that creeps against its brake.
+    charge_pressure : float, optional
+        Force the accumulator's charge pressure [Pa].
 
     Returns
     -------
@@ -892,6 +898,10 @@ def draw(seed: int, *, effect: str | None = None, size: float | None = None,
     if excitation not in EXCITATIONS:
         raise ValueError(f'unknown excitation {excitation!r}; choose from {EXCITATIONS}')
     parameters['brake_force'] = drawn_brake if brake_force is None else float(brake_force)
+    if charge_pressure is not None:
+        parameters['charge_pressure'] = float(charge_pressure)
+    if not excursion > 0.0:
+        raise ValueError(f'excursion must be positive, got {excursion!r}')
     if effect == 'none':
         size = 0.0
     elif size is None:
@@ -906,6 +916,8 @@ def draw(seed: int, *, effect: str | None = None, size: float | None = None,
     maker = _sine_sum if excitation == 'sine_sum' else _steps
     x_ref, v_ref, excitation_parameters = maker(
         sine_rng if excitation == 'sine_sum' else steps_rng, time)
+    x_ref = MID_STROKE + excursion * (x_ref - MID_STROKE)
+    v_ref = excursion * v_ref
     unit = noise_rng.standard_normal((5, n))
 
     plant = _plant(parameters, effect, float(size))

@@ -16,6 +16,7 @@ from exo_has_sim import model
 from exo_has_sim.diagnosis.cli import STRUCTURE_STATUS, main
 from exo_has_sim.diagnosis.compare import horizon_samples, make_windows
 from exo_has_sim.diagnosis.data import check_columns, read_csv
+from exo_has_sim.diagnosis.diagnose import diagnose
 from exo_has_sim.diagnosis.evidence import flow_gains, motor_shortfall, resisting_force
 from exo_has_sim.diagnosis.findings import Alternative, Finding, Judgement
 from exo_has_sim.diagnosis.fitting import (
@@ -28,8 +29,10 @@ from exo_has_sim.diagnosis.fitting import (
 from exo_has_sim.diagnosis.has_plant import HasPlant
 from exo_has_sim.diagnosis.loading import load_plant
 from exo_has_sim.diagnosis.plants import Parameter
+from exo_has_sim.diagnosis.report import summary, write_report
 from exo_has_sim.diagnosis.structure import fit_findings, judge
 from exo_has_sim.diagnosis.transfer import ThirdOrderModel
+from exo_has_sim.errors import SimulationError
 from exo_has_sim.parameters import load_parameters
 from exo_has_sim.simulate import simulate_closed_loop
 
@@ -288,3 +291,32 @@ def test_two_circuits_that_fit_alike_are_both_named_as_the_data_cannot_tell_them
     assert 'a closed circuit; these data cannot tell them apart' in text
     assert 'two chambers' not in text
     assert judgement.to_json()['alike'] == ['circuit=closed']
+
+
+@pytest.mark.slow
+def test_a_model_that_runs_away_from_the_record_gets_the_structure_verdict_naming_where(
+        switched_log, tmp_path):
+    plant = load_plant(switched_log, 'has', 'hip', None, None, False, False)
+    period = plant.measurement.period
+
+    class Diverging(HasPlant):
+        """The plant, but its simulation diverges in every window that starts after 6 s."""
+
+        def predict(self, candidates, span, linearised_at=None):
+            if np.any(span.starts * period > 6.0):
+                raise SimulationError('the simulation diverged (NaN or infinite state)')
+            return super().predict(candidates, span, linearised_at)
+
+    plant.__class__ = Diverging
+    result = diagnose(plant)
+    assert not result.described and result.causes == ()
+    (runaway,) = [f for f in result.judgement.failed if f.check == 'runaway']
+    late = [s for s in result.windows.span.starts if s * period > 6.0]
+    assert runaway.value == pytest.approx(len(late) / result.windows.span.count)
+    assert f'the simulation diverges in {len(late)} (from {late[0] * period:.2f}' \
+        in runaway.text
+    text = summary(result)
+    assert 'cannot follow the record' in text
+    assert 'nominal none (the prediction ran away)' in text
+    report = write_report(result, tmp_path / 'report')
+    assert 'cannot follow the record' in report.read_text()

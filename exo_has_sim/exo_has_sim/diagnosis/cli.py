@@ -8,11 +8,13 @@ how much better the extended model predicts.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
 from exo_has_common.errors import ExoHasError
+from exo_has_sim.diagnosis.budget import TimeBudget
 from exo_has_sim.diagnosis.compare import DEFAULT_HORIZON
 from exo_has_sim.diagnosis.diagnose import DEFAULT_BURN_IN, diagnose
 from exo_has_sim.diagnosis.loading import load_plant
@@ -23,7 +25,8 @@ EPILOG = """CSV: a header row, one row per sample, SI units: time [s], motor_spe
 pressure_a, pressure_b [Pa], motor_speed [rad/s], load_force [N]. Exit status 0 when the
 diagnosis was made and the model's structure describes the data (whatever effect it names, or
 none), 3 when the structure does not describe them (the verdict names the evidence and what
-structure would), 1 when no diagnosis could be made."""
+structure would; a model that cannot follow the record is such a verdict), 1 when the input
+cannot be read."""
 
 
 #: Exit status of a diagnosis whose verdict is that the model's structure does not describe
@@ -59,6 +62,11 @@ def _parser() -> argparse.ArgumentParser:
                         "through the motor's speed loop: judges the hydraulics apart from a "
                         'motor at its torque limit')
     parser.add_argument('--max-causes', type=int, default=2, help='most effects to name (2)')
+    parser.add_argument('--time-budget', type=float, metavar='S',
+                        help='wall-clock seconds for the diagnosis: the searches that refine '
+                        'the verdict (other structures, further selection steps, rival '
+                        'effects, detection limits) start only within it, and the summary '
+                        'says what was not tried (default: no budget)')
     parser.add_argument('-q', '--quiet', action='store_true',
                         help='no progress lines on stderr')
     return parser
@@ -72,10 +80,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(line, file=sys.stderr, flush=True)
 
     try:
+        budget = TimeBudget(math.inf if args.time_budget is None else args.time_budget)
         plant = load_plant(args.input, args.plant, args.joint, args.load_mass, args.params,
                            args.constant_load, args.motor_speed_input)
         result = diagnose(plant, args.horizon, args.burn_in, max_causes=args.max_causes,
-                          progress=None if args.quiet else progress)
+                          progress=None if args.quiet else progress, budget=budget)
         print(summary(result))
         if args.json:
             write_json(result, args.json)

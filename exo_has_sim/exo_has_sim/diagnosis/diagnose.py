@@ -45,6 +45,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from exo_has_sim.diagnosis.budget import TimeBudget
 from exo_has_sim.diagnosis.compare import (
     DEFAULT_HORIZON,
     Span,
@@ -83,6 +84,7 @@ from exo_has_sim.diagnosis.selection import (
 from exo_has_sim.diagnosis.structure import (
     ALTERNATIVE_BUDGET,
     fit_findings,
+    runaway,
     settle_ambiguous,
     try_structures,
 )
@@ -106,8 +108,8 @@ def _weights(plant: WindowedModel, span: Span, values: dict[str, float],
 
 def diagnose(plant: WindowedModel, horizon: float = DEFAULT_HORIZON,
              burn_in: float = DEFAULT_BURN_IN, effects: Sequence[str] | None = None,
-             max_causes: int = 2,
-             progress: Progress | None = None) -> Diagnosis:
+             max_causes: int = 2, progress: Progress | None = None,
+             budget: TimeBudget | None = None) -> Diagnosis:
     """Diagnose a plant's model against its measurement (see the module docstring).
 
     Parameters
@@ -125,6 +127,9 @@ def diagnose(plant: WindowedModel, horizon: float = DEFAULT_HORIZON,
         Most effects to name.
     progress : callable or None
         Called with a line of text per stage and per effect.
+    budget : TimeBudget or None
+        Wall-clock budget of the searches that refine the verdict (:mod:`budget
+        <exo_has_sim.diagnosis.budget>`); none by default.
 
     Raises
     ------
@@ -136,6 +141,7 @@ def diagnose(plant: WindowedModel, horizon: float = DEFAULT_HORIZON,
     """
     started = time.perf_counter()
     say = progress or (lambda _text: None)
+    budget = budget or TimeBudget()
     m = plant.measurement
     chosen = tuple(plant.effects if effects is None else effects)
     unknown = [e for e in chosen if e not in plant.effects]
@@ -157,38 +163,44 @@ def diagnose(plant: WindowedModel, horizon: float = DEFAULT_HORIZON,
     weights = _weights(plant, estimation, plant.nominal(), weights)
     nominal = evaluate(plant, [plant.nominal()], validation, weights)[0]
     say(f'nominal model: validated position fit {nominal.fit(0):.2f} %')
-    say('fitting the baseline (' + ', '.join(p.name for p in plant.baseline) + ')')
-    preliminary = fit_parameters(plant, plant.baseline, {}, estimation, weights,
-                                 max_iterations=4, tolerance=1e-2)
-    weights = _weights(plant, estimation, preliminary.values, weights)
     findings = evidence(plant, windows.span)
+    # The model as its parameters file gives it: what the verdict rests on where no fit can
+    # start, and where the record is plainly of another cylinder.
+    as_given = Fit(plant.nominal(), ())
+    if any(f.check == 'stroke' and not f.passed for f in findings):
+        return _structure_verdict(plant, windows, weights, nominal, as_given, nominal,
+                                  Judgement(tuple(findings)), unidentifiable, started, progress,
+                                  budget, others=False)
+    say('fitting the baseline (' + ', '.join(p.name for p in plant.baseline) + ')')
+    try:
+        preliminary = fit_parameters(plant, plant.baseline, {}, estimation, weights,
+                                     max_iterations=4, tolerance=1e-2)
+    except FitError:
+        judgement = Judgement((*findings,
+                               runaway(plant, plant.nominal(), windows.span, weights)))
+        return _structure_verdict(plant, windows, weights, nominal, as_given, nominal,
+                                  judgement, unidentifiable, started, progress, budget)
+    weights = _weights(plant, estimation, preliminary.values, weights)
     # A model the record's evidence contradicts is fitted as the other structures are, on
     # their budget, to be weighed against them: converged, it took three quarters of the time
     # of a valve-switched record's verdict, which it did not change.
     doubted = any(f.gating and not f.passed for f in findings)
-    budget = ALTERNATIVE_BUDGET if doubted else {'tolerance': REFERENCE_TOLERANCE}
+    effort = ALTERNATIVE_BUDGET if doubted else {'tolerance': REFERENCE_TOLERANCE}
     baseline = fit_parameters(plant, plant.baseline, {}, estimation, weights,
-                              initial=preliminary.values, **budget)
+                              initial=preliminary.values, **effort)
     baseline_validation = evaluate(plant, [baseline.values], validation, weights)[0]
     say(f'baseline{" (on the budget of the other structures)" if doubted else ""}: '
         f'validated position fit {baseline_validation.fit(0):.2f} %')
-    transfer, transfer_fit = _paper_transfer_function(plant, windows)
-    if transfer is not None:
-        say(f"paper's third-order transfer function: validated position fit "
-            f'{transfer_fit:.2f} %')
-        for why in transfer.unphysical():
-            say(f'  not a physical model of the HAS: {why}')
     judgement = settle_ambiguous(plant, Judgement(tuple(findings)), baseline,
                                  baseline_validation, windows, weights, tuple(unidentifiable),
-                                 progress)
+                                 progress, budget)
     if not judgement.described:
         judgement = Judgement((*judgement.findings,
                                *fit_findings(plant, baseline, baseline_validation)),
                               judgement.alternatives)
-        everything = evaluate(plant, [baseline.values], windows.span, weights)[0]
         return _structure_verdict(plant, windows, weights, nominal, baseline,
-                                  baseline_validation, everything, transfer, transfer_fit,
-                                  unidentifiable, judgement, started, progress)
+                                  baseline_validation, judgement, unidentifiable, started,
+                                  progress, budget)
     if doubted:
         say('converging the baseline, its structure not contradicted after all')
         baseline = fit_parameters(plant, plant.baseline, {}, estimation, weights,
@@ -197,7 +209,7 @@ def diagnose(plant: WindowedModel, horizon: float = DEFAULT_HORIZON,
         say(f'baseline: validated position fit {baseline_validation.fit(0):.2f} %')
     everything = evaluate(plant, [baseline.values], windows.span, weights)[0]
     steps = forward_selection(plant, baseline, baseline_validation, windows, weights, chosen,
-                              max_causes, progress)
+                              max_causes, progress, budget)
     named = [step[0] for step in steps if step[0].significant]
     # Without a pressure signal a named effect is checked against every other, not only
     # those the signals cannot identify: with the load said to be constant, a 10 ms delay
@@ -206,7 +218,8 @@ def diagnose(plant: WindowedModel, horizon: float = DEFAULT_HORIZON,
     if isinstance(plant, HasPlant) and 'pressure_a' not in plant.outputs:
         checked += [e for e in chosen if e not in checked]
     hidden = hidden_rivals(plant, steps, baseline, baseline_validation, windows, weights,
-                           checked, progress)
+                           checked, progress) \
+        if budget.allows('the named causes against their rival effects') else {}
     alternatives = plant.alternatives
     structure = tuple(score.effect for score in named if score.effect in alternatives)
     if named and named[0].effect in alternatives:
@@ -226,8 +239,9 @@ def diagnose(plant: WindowedModel, horizon: float = DEFAULT_HORIZON,
             say(f'found {", ".join(causes)}, but the model with it does not describe the '
                 'data: withheld')
         return _structure_verdict(plant, windows, weights, nominal, baseline,
-                                  baseline_validation, everything, transfer, transfer_fit,
-                                  unidentifiable, judgement, started, progress, steps)
+                                  baseline_validation, judgement, unidentifiable, started,
+                                  progress, budget, steps)
+    transfer, transfer_fit = _paper_transfer_function(plant, windows, say)
     say(f'cause: {", ".join(causes) or "none"}; validated position fit '
         f'{baseline_validation.fit(0):.2f} % -> {extended_validation.fit(0):.2f} %')
     tests = {}
@@ -238,58 +252,80 @@ def diagnose(plant: WindowedModel, horizon: float = DEFAULT_HORIZON,
         tests[f'{name}_auto'] = autocorrelation(position)
         tests[f'{name}_cross'] = cross_correlation(position, inputs)
     found = _signatures(plant, windows.span, everything)
-    say('detection limits of the effects left out')
-    limits = detection_limits(plant, extended, extended_validation, validation, weights,
-                              [e for e in chosen if e not in causes])
+    limits = {}
+    if budget.allows('the detection limits of the effects left out'):
+        say('detection limits of the effects left out')
+        limits = detection_limits(plant, extended, extended_validation, validation, weights,
+                                  [e for e in chosen if e not in causes])
     for score in (score for step in steps for score in step):
         if score.own_start and not score.significant and score.effect in limits:
             size = score.fit.values[plant.effect_parameters(score.effect)[0].name]
             limits[score.effect] = refused_at(limits[score.effect], size)
     for limit in limits.values():
         say(f'  {limit.sentence()}')
+    _say_untried(budget, say)
     return Diagnosis(plant, windows, weights, nominal, baseline, baseline_validation, steps,
                      causes, extended, extended_validation, transfer, transfer_fit, tests,
                      found, time.perf_counter() - started, structure, limits, unidentifiable,
-                     hidden, judgement)
+                     hidden, judgement, tuple(budget.untried))
+
+
+def _say_untried(budget: TimeBudget, say: Progress) -> None:
+    if budget.untried:
+        say(f'the time budget of {budget.seconds:g} s ended the search; not tried: '
+            + '; '.join(budget.untried))
 
 
 def _structure_verdict(plant: WindowedModel, windows: Windows, weights: FloatArray,
                        nominal: Evaluation, baseline: Fit, baseline_validation: Evaluation,
-                       everything: Evaluation, transfer: ThirdOrderModel | None,
-                       transfer_fit: float, unidentifiable: dict[str, str],
-                       judgement: Judgement, started: float, progress: Progress | None,
-                       steps: list[list[Score]] | None = None) -> Diagnosis:
+                       judgement: Judgement, unidentifiable: dict[str, str], started: float,
+                       progress: Progress | None, budget: TimeBudget,
+                       steps: list[list[Score]] | None = None,
+                       others: bool = True) -> Diagnosis:
     """Return the diagnosis whose verdict is that the structure does not describe the data.
 
-    No cause is named (the steps of a selection already run are kept, for the report); the
-    plant's other structures are fitted to say which would describe the record.
+    No cause is named (the steps of a selection already run are kept, for the report); with
+    ``others`` the plant's other structures are fitted to say which would describe the
+    record (not where the record is of another cylinder: none of them changes that).
+    A prediction that ran away gives no residual tests nor signatures.
     """
     say = progress or (lambda _text: None)
     for finding in judgement.failed:
         say(f'structure: {finding.text}')
-    if isinstance(plant, HasPlant) and not judgement.alternatives:
+    for finding in judgement.notes:
+        say(f'  (also) {finding.text}')
+    if others and isinstance(plant, HasPlant) and not judgement.alternatives:
         say('trying the structures the plant can take instead')
-        judgement = try_structures(plant, judgement, windows, progress)
+        judgement = try_structures(plant, judgement, windows, progress, budget)
+    transfer, transfer_fit = _paper_transfer_function(plant, windows, say)
     say("the model's structure does not describe these data: no effect is named")
+    _say_untried(budget, say)
     m = plant.measurement
-    inputs = m.input[windows.validation_span.scored()]
-    position = baseline_validation.measured[..., 0] - baseline_validation.predicted[..., 0]
-    tests = {'baseline_auto': autocorrelation(position),
-             'baseline_cross': cross_correlation(position, inputs)}
+    tests, found = {}, []
+    everything = evaluate(plant, [baseline.values], windows.span, weights)[0]
+    if np.all(np.isfinite(everything.predicted)):
+        inputs = m.input[windows.validation_span.scored()]
+        position = baseline_validation.measured[..., 0] - baseline_validation.predicted[..., 0]
+        tests = {'baseline_auto': autocorrelation(position),
+                 'baseline_cross': cross_correlation(position, inputs)}
+        found = _signatures(plant, windows.span, everything)
     return Diagnosis(plant, windows, weights, nominal, baseline, baseline_validation,
                      steps or [], (), baseline, baseline_validation, transfer, transfer_fit,
-                     tests, _signatures(plant, windows.span, everything),
-                     time.perf_counter() - started, (), {}, unidentifiable, {}, judgement)
+                     tests, found, time.perf_counter() - started, (), {},
+                     unidentifiable, {}, judgement, tuple(budget.untried))
 
 
-def _paper_transfer_function(plant: WindowedModel,
-                             windows: Windows) -> tuple[ThirdOrderModel | None, float]:
+def _paper_transfer_function(plant: WindowedModel, windows: Windows,
+                             say: Progress) -> tuple[ThirdOrderModel | None, float]:
     m = plant.measurement
     try:
         model = identify_third_order(m.input, m.position, m.period, windows.estimation_span)
     except FitError:
         return None, math.nan
     fit = model.fit(m.input, m.position, windows.validation_span)
+    say(f"paper's third-order transfer function: validated position fit {fit:.2f} %")
+    for why in model.unphysical():
+        say(f'  not a physical model of the HAS: {why}')
     return model, fit
 
 

@@ -26,9 +26,9 @@ class Finding:
     Attributes
     ----------
     check : str
-        Identifier (``direction_gain``, ``rod_pressure``, ``motor_shortfall``,
-        ``fit:<output>``, ``bound:<parameter>``, ``interval:<parameter>``,
-        ``far:<parameter>``).
+        Identifier (``stroke``, ``runaway``, ``direction_gain``, ``rod_pressure``,
+        ``motor_shortfall``, ``resisting_load``, ``fit:<output>``, ``bound:<parameter>``,
+        ``interval:<parameter>``, ``far:<parameter>``).
     passed : bool
         Whether the structure passes it.
     value : float

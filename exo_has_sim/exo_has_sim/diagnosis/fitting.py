@@ -42,6 +42,9 @@ JACOBIAN_STEP = 0.01
 LOSS_SCALE = 2.0
 #: Two-sided 95 % quantile of the normal distribution.
 Z95 = 1.959963984540054
+#: Weighted residual (in units of an output's spread) at which a prediction counts as run
+#: away from the record; a diverged simulation counts as this much.
+RUNAWAY = 1e3
 
 
 @dataclass(frozen=True)
@@ -260,7 +263,7 @@ def fit_parameters(plant: WindowedModel, free: Sequence[Parameter], fixed: Mappi
             cache.clear()
         for z, evaluation in zip(points, found, strict=True):
             r = evaluation.residuals.ravel()
-            r = np.where(np.isfinite(r), r, 1e3)  # a diverged candidate: a large residual
+            r = np.where(np.isfinite(r), r, RUNAWAY)  # a diverged candidate: a large residual
             if with_prior:
                 r = np.concatenate((r, prior_residuals(z)))
             if around is None:  # a linearised residual is no value of the cost function
@@ -290,7 +293,7 @@ def fit_parameters(plant: WindowedModel, free: Sequence[Parameter], fixed: Mappi
         return jacobians[z.tobytes()]
 
     r0 = fun(z0)[:data_size]
-    if not np.all(np.abs(r0) < 1e3):
+    if not np.all(np.abs(r0) < RUNAWAY):
         msg = f'the starting point of the fit cannot be simulated: {candidate(z0)}'
         raise FitError(msg)
     result = least_squares(fun, z0, jac=jac, bounds=(lower, upper), method='trf',

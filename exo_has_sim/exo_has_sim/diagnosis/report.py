@@ -28,10 +28,17 @@ UNITS = {'position': ('mm', 1e3), 'pressure_a': ('MPa', 1e-6), 'pressure_b': ('M
 def summary(diagnosis: Diagnosis) -> str:
     """Summarise in a few lines: the cause, its size and interval, the validated fits."""
     fits = diagnosis.fits()
-    if diagnosis.judgement is not None and not diagnosis.described:
-        lines = ['verdict: structure', *diagnosis.judgement.sentences()]
+    judgement = diagnosis.judgement
+    if judgement is not None and not diagnosis.described:
+        lines = ['verdict: structure', *judgement.sentences()]
     else:
-        lines = [f'cause: {", ".join(diagnosis.causes) or "none"}']
+        lines = [_cause_line(diagnosis)]
+        if not diagnosis.causes:
+            lines += [f'  {line}' for line in _unjudged(diagnosis)]
+        if judgement is not None:
+            # A finding that fails is shown whether it decides or not: a "none" beside it
+            # is no all-clear.
+            lines += [f'  finding: {f.text}' for f in judgement.notes]
     if diagnosis.structure:
         lines.append(f'baseline structure: {", ".join(diagnosis.structure)} (the data call '
                      'for it; not a cause)')
@@ -45,32 +52,82 @@ def summary(diagnosis: Diagnosis) -> str:
     for choice, others in diagnosis.rivals.items():
         lines.append(f'  indistinguishable from {choice} in these data: {", ".join(others)} '
                      f'({_missing(diagnosis)})')
-    for why, effects in by_reason(diagnosis.unidentifiable).items():
-        titles = ', '.join(effect_title(e) for e in effects)
-        lines.append(f'not identifiable from these signals, never named: {titles} ({why})')
+    if diagnosis.causes or not diagnosis.described:
+        for why, effects in by_reason(diagnosis.unidentifiable).items():
+            titles = ', '.join(effect_title(e) for e in effects)
+            lines.append(f'not identifiable from these signals, never named: {titles} ({why})')
     for output in diagnosis.plant.outputs:
-        lines.append(f'validated {output} fit: nominal {fits["nominal"][output]:.2f} %, '
-                     f'baseline {fits["baseline"][output]:.2f} %, extended '
-                     f'{fits["extended"][output]:.2f} %')
+        lines.append(f'validated {output} fit: nominal {_percent(fits["nominal"][output])}, '
+                     f'baseline {_percent(fits["baseline"][output])}, extended '
+                     f'{_percent(fits["extended"][output])}')
     if diagnosis.transfer is not None:
         lines.append(f"paper's third-order transfer function: position fit "
                      f'{diagnosis.transfer_fit:.2f} %')
         lines.extend(f'  not a physical model of the HAS, whatever its fit: {why}'
                      for why in diagnosis.transfer.unphysical())
+    if diagnosis.untried:
+        lines.append('the time budget ended the search; not tried: '
+                     + '; '.join(diagnosis.untried))
     if diagnosis.limits:
         lines.append('detection limits in these data (effects left out):')
-        lines.extend(f'  {limit.sentence()}' for limit in diagnosis.limits.values())
+        lines.extend(f'  {limit.sentence()}' for limit in diagnosis.limits.values()
+                     if limit.stated)
+        unstated = [effect_title(e) for e, limit in diagnosis.limits.items() if not limit.stated]
+        if unstated:
+            lines.append(f'  no limit is stated for {", ".join(unstated)}: on the truth plants '
+                         'the limit found so held in fewer than 80 % of records')
     return '\n'.join(lines)
+
+
+def _cause_line(diagnosis: Diagnosis) -> str:
+    """Say the cause; a "none" says at once whether it is an all-clear."""
+    if diagnosis.causes:
+        return f'cause: {", ".join(diagnosis.causes)}'
+    failed = [] if diagnosis.judgement is None else diagnosis.judgement.notes
+    lacking = _lacking(diagnosis)
+    caveats = []
+    if failed:
+        caveats.append(f'{len(failed)} finding{"s" if len(failed) > 1 else ""} on the '
+                       'structure failed (below)')
+    if diagnosis.unidentifiable or lacking:
+        caveats.append('some effects could not be judged from these signals (below)')
+    if not caveats:
+        return 'cause: none'
+    return f'cause: none, and not an all-clear: {"; ".join(caveats)}'
+
+
+def _lacking(diagnosis: Diagnosis) -> list[str]:
+    """Return the HAS signals the record lacks that would judge more of it."""
+    if diagnosis.plant.kind != 'has':
+        return []
+    return [name for name in ('pressure_a', 'motor_speed') if name not in diagnosis.plant.outputs]
+
+
+def _unjudged(diagnosis: Diagnosis) -> list[str]:
+    """Say what a record that named nothing could not judge, and which sensor would."""
+    lines = []
+    for why, effects in by_reason(diagnosis.unidentifiable).items():
+        lines.append(f'not judged: {", ".join(effect_title(e) for e in effects)} ({why})')
+    lacking = _lacking(diagnosis)
+    if lacking:
+        lines.append(f'a record with {" and ".join(lacking)} would judge '
+                     + ('them' if diagnosis.unidentifiable else 'the model more closely'))
+    return lines
 
 
 def _missing(diagnosis: Diagnosis) -> str:
     """Say what the record lacks that could tell rival causes apart."""
-    lacking = [name for name in ('pressure_a', 'motor_speed')
-               if name not in diagnosis.plant.outputs]
-    if diagnosis.plant.kind != 'has' or not lacking:
+    lacking = _lacking(diagnosis)
+    if not lacking:
         return 'they predict the held-out data equally well'
     return f'they predict the held-out data equally well; a record with {" and ".join(lacking)} ' \
            'could tell them apart'
+
+
+def _percent(value: float | None) -> str:
+    """Say a fit [%]; one that cannot be computed is a prediction that ran away."""
+    return 'none (the prediction ran away)' if value is None or not math.isfinite(value) \
+        else f'{value:.2f} %'
 
 
 def _number(value: float | None) -> str:
@@ -137,6 +194,13 @@ def _markdown(diagnosis: Diagnosis, title: str | None) -> str:
         out.append('')
     out += [f'**Cause: {", ".join(effect_title(c) for c in d.causes) or "none"}**'
             + (f' (`{"`, `".join(d.causes)}`)' if d.causes else ''), '']
+    if d.judgement is not None and d.described and d.judgement.notes:
+        out += ['Findings that failed without deciding the verdict (each its own check; a '
+                '"none" beside them is no all-clear):', '', '| finding | value | threshold |',
+                '|---|---|---|']
+        out += [f'| {f.text} | {_number(f.value)} | {_number(f.threshold)} |'
+                for f in d.judgement.notes]
+        out.append('')
     if d.structure:
         out.append(f'- Baseline structure the data call for (not a cause): '
                    f'{", ".join(f"`{s}`" for s in d.structure)}.')
@@ -333,12 +397,16 @@ def _plot_tests(d: Diagnosis, path: Path) -> None:
             if test is None:  # a structure verdict extends no model: the baseline's alone
                 continue
             ax.plot(test.lags, test.values, 'o-', ms=2, color=colour, lw=0.8, label=name)
+        if f'baseline_{kind}' not in d.tests:  # a prediction that ran away: no residuals
+            ax.set_title(f'no residual test: the prediction ran away ({kind})', fontsize=9)
+            continue
         band = d.tests[f'baseline_{kind}'].band
         ax.axhspan(-band, band, color='0.85', label='99 % band')
         ax.set_title(d.tests[f'baseline_{kind}'].name, fontsize=9)
         ax.set_xlabel('lag [samples]')
         ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=7)
+    if axes[0].get_legend_handles_labels()[0]:
+        axes[0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=80)
     plt.close(fig)

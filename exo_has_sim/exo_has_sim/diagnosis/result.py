@@ -76,6 +76,8 @@ class Diagnosis:
     judgement : Judgement or None
         Whether the baseline's structure describes the record, and, where not, the other
         structures fitted (:mod:`~exo_has_sim.diagnosis.structure`).
+    untried : tuple[str, ...]
+        The searches a spent time budget skipped (:mod:`~exo_has_sim.diagnosis.budget`).
 
     """
 
@@ -99,6 +101,7 @@ class Diagnosis:
     unidentifiable: dict[str, str] = field(default_factory=dict)
     hidden_rivals: dict[str, list[str]] = field(default_factory=dict)
     judgement: Judgement | None = None
+    untried: tuple[str, ...] = ()
 
     @property
     def described(self) -> bool:
@@ -216,6 +219,7 @@ class Diagnosis:
                      'validation_windows': int(np.sum(self.windows.validation)),
                      'notes': list(m.notes)},
             'elapsed': self.elapsed,
+            'untried': list(self.untried),
         }
 
 

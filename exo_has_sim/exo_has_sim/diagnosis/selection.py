@@ -40,6 +40,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.stats import t as t_distribution
 
+from exo_has_sim.diagnosis.budget import TimeBudget
 from exo_has_sim.diagnosis.compare import Span, Windows
 from exo_has_sim.diagnosis.fitting import (
     Evaluation,
@@ -482,8 +483,8 @@ def _against_own_start(plant: WindowedModel, score: Score, reference: Fit, windo
 
 def forward_selection(plant: WindowedModel, baseline: Fit, baseline_validation: Evaluation,
                       windows: Windows, weights: FloatArray, effects: Sequence[str],
-                      max_causes: int = 2,
-                      progress: Progress | None = None) -> list[list[Score]]:
+                      max_causes: int = 2, progress: Progress | None = None,
+                      budget: TimeBudget | None = None) -> list[list[Score]]:
     """Rank the effects, name the best significant one, and repeat on the extended model.
 
     The plant's alternative structures (:attr:`WindowedModel.alternatives`) compete in every
@@ -500,7 +501,8 @@ def forward_selection(plant: WindowedModel, baseline: Fit, baseline_validation: 
     -------
     list[list[Score]]
         One ranking per step (best score first); step k's first entry is the k-th cause when
-        it is significant. The steps end with the first ranking without a significant effect.
+        it is significant. The steps end with the first ranking without a significant effect,
+        or before a step a spent ``budget`` skips (the first step always runs).
 
     """
     steps: list[list[Score]] = []
@@ -509,6 +511,9 @@ def forward_selection(plant: WindowedModel, baseline: Fit, baseline_validation: 
     structures = set(plant.alternatives)
     remaining = [*effects, *structures.difference(effects)]
     while remaining and sum(e not in structures for e in named) < max_causes:
+        if steps and budget is not None \
+                and not budget.allows(f'step {len(steps) + 1} of the selection'):
+            break
         if progress:
             progress(f'step {len(steps) + 1}: each effect on top of '
                      f'{" + ".join(["baseline", *named])}')

@@ -48,10 +48,12 @@ from dataclasses import replace
 
 import numpy as np
 
+from exo_has_sim.diagnosis.budget import TimeBudget
 from exo_has_sim.diagnosis.compare import Span, Windows
 from exo_has_sim.diagnosis.evidence import evidence, resisting_force
 from exo_has_sim.diagnosis.findings import Alternative, Finding, Judgement
 from exo_has_sim.diagnosis.fitting import (
+    RUNAWAY,
     Evaluation,
     Fit,
     FitBudget,
@@ -141,6 +143,47 @@ def fit_findings(plant: WindowedModel, fit: Fit, validation: Evaluation) -> list
     return out
 
 
+def runaway(plant: WindowedModel, values: Mapping[str, float], span: Span,
+            weights: FloatArray) -> Finding:
+    """Say where a model cannot follow the record: the windows where its prediction runs away.
+
+    Each window is simulated alone from the measured state with ``values``; it runs away where
+    the simulation diverges or an output leaves the record by
+    :data:`~exo_has_sim.diagnosis.fitting.RUNAWAY` times its spread (the fit's test of a
+    start). A model the record's own inputs drive out of it, from the values its user gives,
+    does not describe the record: this finding gates.
+    """
+    period = plant.measurement.period
+    diverged: list[float] = []
+    left: dict[str, list[float]] = {}
+    for i in range(span.count):
+        one = Span(span.starts[i:i + 1], span.horizon, span.burn_in)
+        evaluation = evaluate(plant, [values], one, weights)[0]
+        if not np.all(np.isfinite(evaluation.predicted)):
+            diverged.append(float(span.starts[i] * period))
+            continue
+        worst = np.max(np.abs(evaluation.residuals), axis=(0, 1))
+        if np.max(worst) >= RUNAWAY:
+            left.setdefault(plant.outputs[int(np.argmax(worst))], []).append(
+                float(span.starts[i] * period))
+    gone = len(diverged) + sum(len(times) for times in left.values())
+    share = gone / max(span.count, 1)
+
+    def at(times: Sequence[float]) -> str:
+        shown = ', '.join(f'{t:.2f}' for t in times[:4])
+        return f'{shown}{", ..." if len(times) > 4 else ""} s'
+
+    parts = [f'the simulation diverges in {len(diverged)} (from {at(diverged)})'] \
+        if diverged else []
+    parts += [f'{output} leaves the record by over {RUNAWAY:g} times its spread in '
+              f'{len(times)} (from {at(times)})' for output, times in left.items()]
+    text = (f"the model with the parameters file's values cannot follow the record: of "
+            f'{span.count} windows, each simulated from the measured state, '
+            + ('; '.join(parts) if parts else 'none runs away alone, but together they do')
+            + ": a model the record's own inputs drive out of it does not describe it")
+    return Finding('runaway', False, share, 0.0, text)
+
+
 def judge(plant: WindowedModel, fit: Fit, validation: Evaluation, span: Span) -> Judgement:
     """Judge whether a fitted model's structure describes the record: both stages at once.
 
@@ -167,8 +210,8 @@ def output_fits(plant: WindowedModel, evaluation: Evaluation) -> dict[str, float
 
 def settle_ambiguous(plant: WindowedModel, judgement: Judgement, baseline: Fit,
                      validation: Evaluation, windows: Windows, weights: FloatArray,
-                     effects: Sequence[str],
-                     progress: Progress | None = None) -> Judgement:
+                     effects: Sequence[str], progress: Progress | None = None,
+                     budget: TimeBudget | None = None) -> Judgement:
     """Decide a flow gain by direction that is the only evidence against the structure.
 
     A loss at the loaded chamber's pressure slows one direction as a circuit that feeds the
@@ -189,7 +232,7 @@ def settle_ambiguous(plant: WindowedModel, judgement: Judgement, baseline: Fit,
     failed = judgement.failed
     if not isinstance(plant, HasPlant) or [f.check for f in failed] != ['direction_gain']:
         return judgement
-    tried = try_structures(plant, judgement, windows, progress)
+    tried = try_structures(plant, judgement, windows, progress, budget)
     best = tried.suggestion
     own = normalised_error(output_fits(plant, validation), plant.outputs)
     pressure = plant.measurement.has('pressure_a')
@@ -199,7 +242,7 @@ def settle_ambiguous(plant: WindowedModel, judgement: Judgement, baseline: Fit,
         return tried
     else:
         rival = _rival_effect(plant, best, baseline, validation, windows, weights, effects,
-                              progress)
+                              progress, budget)
         if rival is None:
             return tried
         own = rival[1]
@@ -223,7 +266,8 @@ def settle_ambiguous(plant: WindowedModel, judgement: Judgement, baseline: Fit,
 
 def _rival_effect(plant: HasPlant, best: Alternative, baseline: Fit, validation: Evaluation,
                   windows: Windows, weights: FloatArray, effects: Sequence[str],
-                  progress: Progress | None) -> tuple[str, float] | None:
+                  progress: Progress | None,
+                  budget: TimeBudget | None = None) -> tuple[str, float] | None:
     """Find the first of ``effects`` that, fitted on the model, leaves ``best`` no clear gain.
 
     Each is fitted jointly with the baseline's parameters (:func:`rank` with ``every``:
@@ -248,6 +292,9 @@ def _rival_effect(plant: HasPlant, best: Alternative, baseline: Fit, validation:
     if progress:
         progress(f'  {best.name}: the model with each effect, against it')
     for effect in (e for e in effects if e in DIRECTION_MIMICS):
+        if budget is not None and not budget.allows(f'the model with {effect} against '
+                                                    f'{best.name}'):
+            continue
         score = rank(plant, baseline, validation, [], [effect], windows, weights, progress,
                      every=True, retry=lambda s: reach < error(s) <= near,
                      budget=ALTERNATIVE_BUDGET)[0]
@@ -316,15 +363,18 @@ def candidate_structures(plant: HasPlant, judgement: Judgement) -> list[tuple[st
 
 
 def try_structures(plant: HasPlant, judgement: Judgement, windows: Windows,
-                   progress: Progress | None = None) -> Judgement:
+                   progress: Progress | None = None,
+                   budget: TimeBudget | None = None) -> Judgement:
     """Fit the plant's other structures to the record and rank them (best first).
 
     Each takes its own baseline fit (its weights made as the diagnosis makes them) and is
     judged by the same findings; they are ranked by their normalised error over the outputs
-    they share with the plant.
+    they share with the plant. A spent ``budget`` skips the structures not yet fitted.
     """
     alternatives = []
     for name, title, other in candidate_structures(plant, judgement):
+        if budget is not None and not budget.allows(f'the structure {name}'):
+            continue
         if progress:
             progress(f'  fitting the structure {name}')
         weights = output_weights(other)
