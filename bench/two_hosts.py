@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import os
 import random
+import signal
 import statistics
 import subprocess
 import sys
@@ -35,7 +36,7 @@ import numpy as np
 
 os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(100, 200)))
 
-from common import describe_machine, write_results
+from common import Processes, describe_machine, write_results
 
 from exo_has_bringup.analysis import read_session
 from exo_has_bringup.hosts import ADDRESSES, LINK_INTERFACE, OPERATOR, ROBOT, VirtualHosts
@@ -71,19 +72,20 @@ def first_message(hosts: VirtualHosts | None, robot_env: dict[str, str],
         talker.wait_for_output('READY', timeout_s=30.0)
         prefix = ['nsenter', f'--net={netns[OPERATOR]}'] if netns[OPERATOR] else []
         start = time.monotonic()
-        listener = subprocess.Popen(
-            [*prefix, sys.executable, '-u', '-m', 'exo_has_runtime.topic_tool', 'record',
-             TOPIC.rsplit('=', 1)[0] + '=std_msgs/msg/String', '--count', '1', '--duration',
-             f'{DISCOVERY_TIMEOUT:g}', '--name', 'listener'], stdout=subprocess.PIPE,
-            text=True, env={**os.environ, **operator_env}, cwd=tempfile.gettempdir())
-        assert listener.stdout is not None
-        found = None
-        for line in listener.stdout:
-            if line.startswith('{'):
-                found = time.monotonic() - start
-                break
-        listener.kill()
-        listener.wait()
+        with Processes() as processes:
+            listener = processes.start(
+                [*prefix, sys.executable, '-u', '-m', 'exo_has_runtime.topic_tool', 'record',
+                 TOPIC.rsplit('=', 1)[0] + '=std_msgs/msg/String', '--count', '1',
+                 '--duration', f'{DISCOVERY_TIMEOUT:g}', '--name', 'listener'],
+                stdout=subprocess.PIPE, text=True, env={**os.environ, **operator_env},
+                cwd=tempfile.gettempdir())
+            assert listener.stdout is not None
+            found = None
+            for line in listener.stdout:
+                if line.startswith('{'):
+                    found = time.monotonic() - start
+                    break
+            processes.end(listener, first=signal.SIGKILL)
         return found
 
 
