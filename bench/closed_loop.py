@@ -101,7 +101,6 @@ from typing import Any
 import numpy as np
 from common import (
     LOOP_SUMMARY,
-    Processes,
     describe_machine,
     on_this_machine,
     raise_softirq_threads,
@@ -120,6 +119,7 @@ from exo_has_common.bag import default_typestore, read_messages
 from exo_has_common.realtime import parse_cpus
 from exo_has_common.timing import PeriodMonitor
 from exo_has_runtime.dds import RMW_LOCALHOST_ENVIRONMENT
+from exo_has_runtime.processes import Processes
 
 RESULTS = Path(__file__).resolve().parent / 'results'
 MOTIONS, DURATIONS = ('walk', 'squat'), (10.0, 8.0)

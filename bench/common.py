@@ -1,14 +1,12 @@
-"""What the benchmarks share: their processes, CPU time, the machine, CPU shares, results."""
+"""What the benchmarks share: spinners, CPU time, the machine, CPU shares, the results."""
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import platform
 import random
 import re
-import signal
 import subprocess
 import sys
 import time
@@ -16,93 +14,14 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from exo_has_runtime.processes import Processes
+
 if TYPE_CHECKING:  # the scripts choose the backend before they import the session
     from exo_has_bringup.runner import Session
 
 TICK = os.sysconf('SC_CLK_TCK')
-#: How long [s] the processes of a benchmark have to end on their first signal, before SIGKILL.
-GRACE = 5.0
 #: A process that spins: the load of the benchmarks' ``--busy``.
 SPIN = (sys.executable, '-c', 'while True: pass')
-
-
-def tethered(command: Sequence[str]) -> list[str]:
-    """Return ``command`` run so that it gets SIGTERM when this process dies, even by SIGKILL.
-
-    Through :mod:`exo_has_runtime.tether` (``--exec``): Linux signals it when the thread that
-    started it ends, so start it from a thread that outlives it (the main thread).
-    """
-    return [sys.executable, '-m', 'exo_has_runtime.tether', str(os.getpid()), '--exec',
-            *command]
-
-
-class Processes:
-    """The processes a benchmark starts, each ended when the ``with`` closes, however it closes.
-
-    Each runs tethered (:func:`tethered`: it ends with this process, even one killed by
-    SIGKILL) in a session and process group of its own (a terminal's Ctrl-C reaches only the
-    benchmark, which ends them here). On exit, normal or by an exception (a set-up step that
-    failed, KeyboardInterrupt), every process still running gets SIGTERM with its group, then
-    SIGKILL after ``grace`` seconds, and is reaped.
-
-    Parameters
-    ----------
-    grace : float
-        Time [s] to end on SIGTERM before SIGKILL.
-
-    """
-
-    def __init__(self, grace: float = GRACE) -> None:
-        self.grace = grace
-        self.started: list[subprocess.Popen[Any]] = []
-
-    def __enter__(self) -> Processes:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.end(*self.started)
-
-    def start(self, command: Sequence[str], **options: Any) -> subprocess.Popen[Any]:
-        """Start ``command`` (options as :class:`subprocess.Popen` takes them); return it."""
-        process = subprocess.Popen(tethered(command), start_new_session=True, **options)
-        self.started.append(process)
-        return process
-
-    def run(self, command: Sequence[str], timeout: float | None = None, check: bool = False,
-            **options: Any) -> subprocess.CompletedProcess[Any]:
-        """Run ``command`` to its end, as :func:`subprocess.run` would, and return what it gave.
-
-        Its output is captured where ``options`` say (``stdout=subprocess.PIPE``...). Past
-        ``timeout`` [s], :class:`subprocess.TimeoutExpired`; with ``check``, an exit code
-        other than 0 raises :class:`subprocess.CalledProcessError`. Either way, and on any
-        other exception, the process is ended when the ``with`` closes.
-        """
-        process = self.start(command, **options)
-        stdout, stderr = process.communicate(timeout=timeout)
-        if check and process.returncode != 0:
-            raise subprocess.CalledProcessError(process.returncode, list(command), stdout,
-                                                stderr)
-        return subprocess.CompletedProcess(list(command), process.returncode, stdout, stderr)
-
-    def end(self, *processes: subprocess.Popen[Any], first: int = signal.SIGTERM) -> None:
-        """End ``processes`` and their groups: ``first``, then SIGKILL after the grace time."""
-        running = [p for p in processes if p.returncode is None]
-        for process in running:
-            signal_group(process, first)
-        deadline = time.monotonic() + self.grace
-        for process in running:
-            try:
-                process.wait(max(0.0, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                signal_group(process, signal.SIGKILL)
-                process.wait()
-
-
-def signal_group(process: subprocess.Popen[Any], number: int) -> None:
-    """Send signal ``number`` to the process group that ``process`` (not yet reaped) leads."""
-    # Until it is reaped, its id is its group's and no other process's.
-    with contextlib.suppress(ProcessLookupError):
-        os.killpg(process.pid, number)
 
 
 def pinned(cpus: str, command: Sequence[str]) -> list[str]:

@@ -29,8 +29,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-from common import Processes
 
+from exo_has_runtime.processes import Processes
 from exo_has_sim import model
 from exo_has_sim.diagnosis.data import check_columns, write_csv
 from exo_has_sim.parameters import load_parameters

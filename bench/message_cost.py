@@ -19,7 +19,9 @@ import threading
 import time
 from pathlib import Path
 
-from common import Processes, describe_machine, on_this_machine, write_results
+from common import describe_machine, on_this_machine, write_results
+
+from exo_has_runtime.processes import Processes
 
 JOINTS = ('left_hip', 'left_knee', 'right_hip', 'right_knee')
 WARM_UP_S, WINDOW_S = 4.0, 10.0

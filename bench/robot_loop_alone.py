@@ -43,7 +43,6 @@ from typing import Any
 import numpy as np
 from common import (
     LOOP_SUMMARY,
-    Processes,
     pinned,
     raise_softirq_threads,
     restore_threads,
@@ -56,6 +55,7 @@ from witness import WITNESS_FIGURES, Witness
 from exo_has_bringup.robot_exchange import DatagramExchange, bridge_end
 from exo_has_common.realtime import parse_cpus
 from exo_has_driver.hardware.bus import random_multicast_group
+from exo_has_runtime.processes import Processes
 
 SENDER = Path(__file__).resolve().parents[1] / 'exo_has_bringup' / 'test' / \
     'robot_reference_sender.py'

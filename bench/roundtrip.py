@@ -44,10 +44,10 @@ import time
 from contextlib import ExitStack
 from pathlib import Path
 
-from common import Processes, cpu_seconds, describe_machine, on_this_machine
+from common import cpu_seconds, describe_machine, on_this_machine
 
 from exo_has_bringup.hosts import OPERATOR, ROBOT, VirtualHosts
-from exo_has_runtime.processes import NodeProcess
+from exo_has_runtime.processes import NodeProcess, Processes
 
 JOINT = 'left_hip'
 #: Distinct command speeds in flight before one repeats.

@@ -36,11 +36,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import Processes, write_results
+from common import write_results
 
 from exo_has_bringup.analysis import read_session
 from exo_has_bringup.plan import SessionConfig
 from exo_has_bringup.runner import Session
+from exo_has_runtime.processes import Processes
 
 WATCH_PRIORITY = 60  # SCHED_FIFO: above the plants' real-time priority option (50)
 

@@ -44,7 +44,6 @@ from pathlib import Path
 
 import numpy as np
 from common import (
-    Processes,
     describe_machine,
     on_this_machine,
     trial_cpu_shares,
@@ -56,6 +55,7 @@ from exo_has_bringup.plan import COMPOSITION, SessionConfig
 from exo_has_bringup.runner import Session
 from exo_has_common.joints import JOINT_NAMES
 from exo_has_runtime.dds import RMW_LOCALHOST_ENVIRONMENT
+from exo_has_runtime.processes import Processes
 
 
 def latencies(bag: Path) -> tuple[np.ndarray, np.ndarray, int]:

@@ -36,7 +36,7 @@ import numpy as np
 
 os.environ.setdefault('ROS_DOMAIN_ID', str(random.SystemRandom().randint(100, 200)))
 
-from common import Processes, describe_machine, write_results
+from common import describe_machine, write_results
 
 from exo_has_bringup.analysis import read_session
 from exo_has_bringup.hosts import ADDRESSES, LINK_INTERFACE, OPERATOR, ROBOT, VirtualHosts
@@ -44,7 +44,7 @@ from exo_has_bringup.plan import SessionConfig
 from exo_has_bringup.runner import Session
 from exo_has_common.joints import JOINT_NAMES
 from exo_has_msgs.msg import SafetyEvent
-from exo_has_runtime.processes import NodeProcess
+from exo_has_runtime.processes import NodeProcess, Processes
 
 #: Discovery settings compared: name -> environment of the robot's and the operator's nodes.
 SETTINGS: dict[str, tuple[dict[str, str], dict[str, str]]] = {

@@ -24,7 +24,9 @@ import sys
 import time
 from pathlib import Path
 
-from common import Processes, describe_machine, write_results
+from common import describe_machine, write_results
+
+from exo_has_runtime.processes import Processes
 
 ROUND_TRIPS = 20_000
 REPEATS = 3

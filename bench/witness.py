@@ -29,7 +29,7 @@ from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from common import Processes
+from exo_has_runtime.processes import Processes
 
 #: A sample line of ``cyclictest -v``: thread index, cycle, latency [us].
 SAMPLE = re.compile(r'^\s*(\d+):\s*(\d+):\s*(\d+)\s*$')
