@@ -88,6 +88,7 @@ import argparse
 import json
 import os
 import re
+import signal
 import subprocess
 import sys
 import tempfile
@@ -104,6 +105,7 @@ from common import (
     on_this_machine,
     raise_softirq_threads,
     restore_threads,
+    start_busy,
     trial_cpu_shares,
 )
 from kernel_trace import GAP_SLACK, TRACE_FIGURES, CpuTrace, only_other_thread, trace_figures
@@ -117,6 +119,7 @@ from exo_has_common.bag import default_typestore, read_messages
 from exo_has_common.realtime import parse_cpus
 from exo_has_common.timing import PeriodMonitor
 from exo_has_runtime.dds import RMW_LOCALHOST_ENVIRONMENT
+from exo_has_runtime.processes import Processes
 
 RESULTS = Path(__file__).resolve().parent / 'results'
 MOTIONS, DURATIONS = ('walk', 'squat'), (10.0, 8.0)
@@ -155,20 +158,6 @@ rclpy.shutdown()
 """
 
 
-def start_busy(count: int) -> list[subprocess.Popen[bytes]]:
-    """Start ``count`` processes that spin, the i-th pinned to core i modulo the cores.
-
-    Every core of the machine, not only this process's (which ``--robot-cpus`` narrows).
-    """
-    cores = list(range(os.cpu_count() or 1))
-    busy = []
-    for index in range(count):
-        process = subprocess.Popen([sys.executable, '-c', 'while True: pass'])
-        os.sched_setaffinity(process.pid, {cores[index % len(cores)]})
-        busy.append(process)
-    return busy
-
-
 class Joiners:
     """Third-party participants joining the domain every ``period`` seconds, one at a time.
 
@@ -198,16 +187,16 @@ class Joiners:
         due = time.monotonic()
         while not self._stop.is_set():
             log = self.folder / f'joiner_{self.started}.log'
-            with log.open('w') as out:
-                process = subprocess.Popen(
+            # Started from this thread, which outlives it: its tether holds.
+            with log.open('w') as out, Processes() as processes:
+                process = processes.start(
                     [sys.executable, '-c', JOINER, f'joiner_{self.started}', f'{JOINER_SPIN}'],
                     stdout=out, stderr=subprocess.STDOUT, env=self._environment)
                 self.started += 1
                 try:
                     process.wait(JOINER_TIMEOUT)
                 except subprocess.TimeoutExpired:
-                    process.kill()
-                    process.wait()
+                    processes.end(process, first=signal.SIGKILL)
             found = re.search(r'heard (\d+)', log.read_text())
             self.heard += bool(found and int(found.group(1)) > 0)
             due += self.period
@@ -546,22 +535,18 @@ def main() -> None:
         os.sched_setaffinity(0, set(range(os.cpu_count() or 1)) - parse_cpus(args.robot_cpus))
     on_this_machine()
     runs = []
-    busy = start_busy(args.busy)
-    softirq = raise_softirq_threads(parse_cpus(args.robot_cpus), args.softirq_priority) \
-        if args.softirq_priority and args.robot_cpus else {}
-    try:
-        with tempfile.TemporaryDirectory() as scratch:
-            for repeat in range(args.repeats):
-                for name, (hardware, priority) in variants.items():
-                    folder = Path(args.folder or scratch) / f'{hardware}_{priority}_{repeat}'
-                    runs.append({'variant': name, 'repeat': repeat,
-                                 **run(hardware, priority, folder, args)})
-                    print(json.dumps(runs[-1]), flush=True)
-    finally:
-        restore_threads(softirq)
-        for process in busy:
-            process.kill()
-            process.wait()
+    with ExitStack() as stack:
+        start_busy(stack.enter_context(Processes()), args.busy)
+        softirq = raise_softirq_threads(parse_cpus(args.robot_cpus), args.softirq_priority) \
+            if args.softirq_priority and args.robot_cpus else {}
+        stack.callback(restore_threads, softirq)
+        scratch = stack.enter_context(tempfile.TemporaryDirectory())
+        for repeat in range(args.repeats):
+            for name, (hardware, priority) in variants.items():
+                folder = Path(args.folder or scratch) / f'{hardware}_{priority}_{repeat}'
+                runs.append({'variant': name, 'repeat': repeat,
+                             **run(hardware, priority, folder, args)})
+                print(json.dumps(runs[-1]), flush=True)
     write_report(runs, args, describe_machine(),
                  f'bench/closed_loop.py {" ".join(sys.argv[1:])}')
 

@@ -1,4 +1,4 @@
-"""What the benchmarks share: CPU time, the machine, a session's CPU shares, the results."""
+"""What the benchmarks share: spinners, CPU time, the machine, CPU shares, the results."""
 
 from __future__ import annotations
 
@@ -7,14 +7,35 @@ import os
 import platform
 import random
 import re
+import subprocess
+import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
+
+from exo_has_runtime.processes import Processes
 
 if TYPE_CHECKING:  # the scripts choose the backend before they import the session
     from exo_has_bringup.runner import Session
 
 TICK = os.sysconf('SC_CLK_TCK')
+#: A process that spins: the load of the benchmarks' ``--busy``.
+SPIN = (sys.executable, '-c', 'while True: pass')
+
+
+def pinned(cpus: str, command: Sequence[str]) -> list[str]:
+    """Return ``command`` kept to ``cpus`` (as taskset takes them), or as it is."""
+    return ['taskset', '-c', cpus, *command] if cpus else list(command)
+
+
+def start_busy(processes: Processes, count: int) -> list[subprocess.Popen[Any]]:
+    """Start ``count`` processes that spin, the i-th pinned to core i modulo the cores.
+
+    Every core of the machine, whatever this process's own CPUs are.
+    """
+    cores = os.cpu_count() or 1
+    return [processes.start(pinned(str(index % cores), SPIN)) for index in range(count)]
 
 
 def on_this_machine() -> None:

@@ -65,6 +65,7 @@ import truth_plant as plant_a
 from common import describe_machine, write_results
 from rigs import rig_file
 
+from exo_has_runtime.tether import tie_to_parent
 from exo_has_sim.diagnosis.cli import STRUCTURE_STATUS
 from exo_has_sim.diagnosis.cli import main as diagnose_main
 from exo_has_sim.diagnosis.structure import normalised_error
@@ -196,7 +197,8 @@ def run_tasks(tasks: Sequence[Task],
     results = []
     if jobs > 1:
         os.environ['EXO_HAS_THREADS'] = '1'
-    with multiprocessing.get_context('fork').Pool(jobs) as pool:
+    # Tethered: a worker ends with this process, even one killed by SIGKILL.
+    with multiprocessing.get_context('fork').Pool(jobs, tie_to_parent, (os.getpid(),)) as pool:
         for row in pool.imap_unordered(diagnose_draw, tasks):
             print(json.dumps(row), flush=True)
             results.append(row)

@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from exo_has_runtime.processes import Processes
 from exo_has_sim import model
 from exo_has_sim.diagnosis.data import check_columns, write_csv
 from exo_has_sim.parameters import load_parameters
@@ -82,8 +83,10 @@ def make_log(duration: float, path: Path, seed: int = 0, sensors: str = 'full') 
 
 def run_child(log: Path, result: Path) -> dict[str, float]:
     """Run the command on a log in a fresh process; return its wall time and peak RSS."""
-    out = subprocess.run([sys.executable, '-c', CHILD, str(log), str(result)],
-                         capture_output=True, text=True, check=True)
+    with Processes() as processes:
+        out = processes.run([sys.executable, '-c', CHILD, str(log), str(result)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            check=True)
     measured: dict[str, float] = json.loads(out.stdout.strip().splitlines()[-1])
     if measured['code'] != 0:
         msg = f'exo-has diagnose failed: {out.stderr}'

@@ -29,7 +29,8 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-TRACEFS = Path('/sys/kernel/tracing')
+#: Where tracefs is mounted; EXO_HAS_TRACEFS for another mount point (or none: a test's).
+TRACEFS = Path(os.environ.get('EXO_HAS_TRACEFS', '/sys/kernel/tracing'))
 #: Enough events to see both what runs and that the CPU runs at all.
 EVENTS = ('sched/sched_switch', 'sched/sched_waking', 'irq_vectors/local_timer_entry',
           'irq/softirq_entry', 'irq/irq_handler_entry', 'irq_vectors/reschedule_entry',

@@ -21,6 +21,8 @@ from pathlib import Path
 
 from common import describe_machine, on_this_machine, write_results
 
+from exo_has_runtime.processes import Processes
+
 JOINTS = ('left_hip', 'left_knee', 'right_hip', 'right_knee')
 WARM_UP_S, WINDOW_S = 4.0, 10.0
 
@@ -75,11 +77,12 @@ def side(role: str, raw: bool) -> None:
 def pair(raw: bool) -> dict[str, float]:
     """Run a publisher and a subscriber side by side; the cost per message of each [us]."""
     here = str(Path(__file__).resolve())
-    processes = {role: subprocess.Popen([sys.executable, here, '_side', role, str(raw)],
-                                        stdout=subprocess.PIPE, text=True)
+    with Processes() as processes:
+        sides = {role: processes.start([sys.executable, here, '_side', role, str(raw)],
+                                       stdout=subprocess.PIPE, text=True)
                  for role in ('publish', 'receive')}
-    out = {role: json.loads(p.communicate(timeout=120)[0].strip().splitlines()[-1])
-           for role, p in processes.items()}
+        out = {role: json.loads(p.communicate(timeout=120)[0].strip().splitlines()[-1])
+               for role, p in sides.items()}
     return {f'{role}_us': round(1e6 * r['cpu_s'] / max(r['messages'], 1), 1)
             for role, r in out.items()} | {'received': out['receive']['messages']}
 

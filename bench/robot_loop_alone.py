@@ -41,85 +41,79 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from common import LOOP_SUMMARY, raise_softirq_threads, restore_threads, write_results
+from common import (
+    LOOP_SUMMARY,
+    pinned,
+    raise_softirq_threads,
+    restore_threads,
+    start_busy,
+    write_results,
+)
 from kernel_trace import TRACE_FIGURES, CpuTrace, only_other_thread, trace_figures
 from witness import WITNESS_FIGURES, Witness
 
 from exo_has_bringup.robot_exchange import DatagramExchange, bridge_end
 from exo_has_common.realtime import parse_cpus
 from exo_has_driver.hardware.bus import random_multicast_group
+from exo_has_runtime.processes import Processes
 
 SENDER = Path(__file__).resolve().parents[1] / 'exo_has_bringup' / 'test' / \
     'robot_reference_sender.py'
 REFERENCE = ('left_hip=0.2', 'left_knee=0.3', 'right_hip=0.2', 'right_knee=0.3')  # rad
 
 
-def pinned(cpus: str, command: list[str]) -> list[str]:
-    """Return ``command`` kept to ``cpus`` (as taskset takes them), or as it is."""
-    return ['taskset', '-c', cpus, *command] if cpus else command
-
-
 def run(args: argparse.Namespace, memory: str) -> dict[str, Any]:
     """Run the devices, the loop, the sender and the busy processes once; return the figures."""
     cores = os.cpu_count() or 1
-    busy = [subprocess.Popen(['taskset', '-c', str(i % cores), sys.executable, '-c',
-                              'while True: pass']) for i in range(args.busy)]
     group = random_multicast_group()
-    started: list[subprocess.Popen[str]] = []
     witness_cpus = parse_cpus(args.loop_cpus) if args.loop_cpus else \
         frozenset(range(cores))
     with tempfile.TemporaryDirectory(prefix='exo-alone-') as directory, ExitStack() as stack:
+        # Entered first, left last: every process started is ended, whichever step fails.
+        processes = stack.enter_context(Processes())
+        start_busy(processes, args.busy)
         bridge = bridge_end(Path(directory))
         stack.callback(bridge.close)
         witness = stack.enter_context(Witness(witness_cpus, args.witness_priority)) \
             if args.witness_priority else None
         # From before the loop starts; judged from its activation on.
         trace = stack.enter_context(CpuTrace(witness_cpus)) if args.trace else None
-        try:
-            devices = subprocess.Popen(pinned(args.devices_cpus, [
-                sys.executable, '-m', 'exo_has_driver.devices.main', '--interface',
-                'udp_multicast', '--channel', group,
-                '--realtime-priority', f'{args.devices_priority}']), stdout=subprocess.PIPE,
-                text=True)
-            started.append(devices)
-            assert devices.stdout is not None
-            devices.stdout.readline()  # can devices ready
-            loop = subprocess.Popen(pinned(args.loop_cpus, [
-                sys.executable, '-m', 'exo_has_bringup.robot_main', '--interface',
-                'udp_multicast', '--channel', group, '--rate', f'{args.rate}',
-                '--bitrate', f'{args.bitrate}', '--socket-dir', directory,
-                '--realtime-priority', f'{args.loop_priority}', '--activate',
-                '--lock-memory' if memory == 'locked' else '--no-lock-memory']),
-                stdout=subprocess.PIPE, text=True)
-            started.append(loop)
-            assert loop.stdout is not None
-            loop.stdout.readline()  # robot loop ready: configured and activated
-            ready = time.monotonic()
-            sender = subprocess.Popen([sys.executable, str(SENDER), directory, '50', *REFERENCE],
-                                      stdout=subprocess.PIPE, text=True)
-            started.append(sender)
-            begin = time.time()
-            deadline = time.monotonic() + args.seconds
-            # What the loop sends is taken, as a bridge would, to the end of the run.
-            drained = threading.Event()
-            drainer = threading.Thread(target=drain, args=(bridge, drained), daemon=True)
-            drainer.start()
-            stack.callback(drainer.join)
-            stack.callback(drained.set)
-            time.sleep(1.0)
-            resident_mb = resident(loop.pid)
-            tid = only_other_thread(loop.pid)  # the loop's I/O thread
-            time.sleep(max(0.0, deadline - time.monotonic()))
-            end = time.time()
-            running = (ready, time.monotonic())
-            sender.kill()
-            loop.send_signal(signal.SIGTERM)
-            output = loop.communicate(timeout=30.0)[0]
-        finally:
-            for process in [*started, *busy]:
-                if process.poll() is None:
-                    process.kill()
-                process.wait()
+        devices = processes.start(pinned(args.devices_cpus, [
+            sys.executable, '-m', 'exo_has_driver.devices.main', '--interface',
+            'udp_multicast', '--channel', group,
+            '--realtime-priority', f'{args.devices_priority}']), stdout=subprocess.PIPE,
+            text=True)
+        assert devices.stdout is not None
+        devices.stdout.readline()  # can devices ready
+        loop = processes.start(pinned(args.loop_cpus, [
+            sys.executable, '-m', 'exo_has_bringup.robot_main', '--interface',
+            'udp_multicast', '--channel', group, '--rate', f'{args.rate}',
+            '--bitrate', f'{args.bitrate}', '--socket-dir', directory,
+            '--realtime-priority', f'{args.loop_priority}', '--activate',
+            '--lock-memory' if memory == 'locked' else '--no-lock-memory']),
+            stdout=subprocess.PIPE, text=True)
+        assert loop.stdout is not None
+        loop.stdout.readline()  # robot loop ready: configured and activated
+        ready = time.monotonic()
+        sender = processes.start([sys.executable, str(SENDER), directory, '50', *REFERENCE],
+                                 stdout=subprocess.PIPE, text=True)
+        begin = time.time()
+        deadline = time.monotonic() + args.seconds
+        # What the loop sends is taken, as a bridge would, to the end of the run.
+        drained = threading.Event()
+        drainer = threading.Thread(target=drain, args=(bridge, drained), daemon=True)
+        drainer.start()
+        stack.callback(drainer.join)
+        stack.callback(drained.set)
+        time.sleep(1.0)
+        resident_mb = resident(loop.pid)
+        tid = only_other_thread(loop.pid)  # the loop's I/O thread
+        time.sleep(max(0.0, deadline - time.monotonic()))
+        end = time.time()
+        running = (ready, time.monotonic())
+        processes.end(sender, first=signal.SIGKILL)
+        loop.send_signal(signal.SIGTERM)
+        output = loop.communicate(timeout=30.0)[0]
     found = LOOP_SUMMARY.search(output)
     if found is None:
         msg = f'the robot loop printed no summary: {output[-2000:]}'

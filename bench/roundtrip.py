@@ -47,7 +47,7 @@ from pathlib import Path
 from common import cpu_seconds, describe_machine, on_this_machine
 
 from exo_has_bringup.hosts import OPERATOR, ROBOT, VirtualHosts
-from exo_has_runtime.processes import NodeProcess
+from exo_has_runtime.processes import NodeProcess, Processes
 
 JOINT = 'left_hip'
 #: Distinct command speeds in flight before one repeats.
@@ -173,11 +173,12 @@ def _run_pair(executor_kind: str, rate_hz: float, duration_s: float, plant_env: 
                      env=plant_env, netns=netns) as plant:
         plant.wait_for_output('plant ready', timeout_s=120)
         plant_cpu_before = cpu_seconds(plant.process.pid)
-        client_run = subprocess.run(
-            [*prefix, sys.executable, str(here), '_client', str(rate_hz), str(duration_s),
-             executor_kind], cwd=tempfile.gettempdir(),
-            env={**os.environ, **client_env}, capture_output=True,
-            text=True, timeout=duration_s + 90)
+        with Processes() as processes:
+            client_run = processes.run(
+                [*prefix, sys.executable, str(here), '_client', str(rate_hz), str(duration_s),
+                 executor_kind], cwd=tempfile.gettempdir(),
+                env={**os.environ, **client_env}, stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE, text=True, timeout=duration_s + 90)
         plant_cpu_s = cpu_seconds(plant.process.pid) - plant_cpu_before
         if client_run.returncode != 0:
             msg = (f'client failed ({client_run.returncode}):\n{client_run.stderr}\n'

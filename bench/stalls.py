@@ -41,6 +41,7 @@ from common import write_results
 from exo_has_bringup.analysis import read_session
 from exo_has_bringup.plan import SessionConfig
 from exo_has_bringup.runner import Session
+from exo_has_runtime.processes import Processes
 
 WATCH_PRIORITY = 60  # SCHED_FIFO: above the plants' real-time priority option (50)
 
@@ -96,18 +97,19 @@ def run(folder: Path, gap_s: float, durations: tuple[float, float],
     """One walking and squatting session with the two watchers; its stalls, classified."""
     config = SessionConfig(('walk', 'squat'), durations, 200.0)
     session = Session(config, folder, env={'EXO_HAS_GC_FREEZE': '1' if gc_freeze == 'on' else '0'})
-    session.start(show=lambda line: None)
-    assert session.started_at is not None
-    span = session.started_at - time.monotonic() + sum(durations) + 1.0
-    watchers = {
-        kind: subprocess.Popen(
-            [sys.executable, __file__, '--watch', kind, '--gap', f'{gap_s}',
-             '--duration', f'{span:.2f}'], stdout=subprocess.PIPE, text=True)
-        for kind in ('fifo', 'normal')}
-    try:
-        time.sleep(span + 0.5)
-    finally:
-        session.stop()
+    with Processes() as processes:
+        session.start(show=lambda line: None)
+        try:
+            assert session.started_at is not None
+            span = session.started_at - time.monotonic() + sum(durations) + 1.0
+            watchers = {
+                kind: processes.start(
+                    [sys.executable, __file__, '--watch', kind, '--gap', f'{gap_s}',
+                     '--duration', f'{span:.2f}'], stdout=subprocess.PIPE, text=True)
+                for kind in ('fifo', 'normal')}
+            time.sleep(span + 0.5)
+        finally:
+            session.stop()
         seen = {kind: json.loads(p.communicate(timeout=30.0)[0]) for kind, p in watchers.items()}
     assert session.bag is not None
     stalls = []

@@ -43,13 +43,19 @@ import time
 from pathlib import Path
 
 import numpy as np
-from common import describe_machine, on_this_machine, trial_cpu_shares, write_results
+from common import (
+    describe_machine,
+    on_this_machine,
+    trial_cpu_shares,
+    write_results,
+)
 
 from exo_has_bringup.analysis import read_session
 from exo_has_bringup.plan import COMPOSITION, SessionConfig
 from exo_has_bringup.runner import Session
 from exo_has_common.joints import JOINT_NAMES
 from exo_has_runtime.dds import RMW_LOCALHOST_ENVIRONMENT
+from exo_has_runtime.processes import Processes
 
 
 def latencies(bag: Path) -> tuple[np.ndarray, np.ndarray, int]:
@@ -172,16 +178,18 @@ def run(rate: float, duration: float, folder: Path, priority: int = 0,
                            node_arguments=node_arguments(variant))
     env = {'EXO_HAS_EXECUTOR': executor, **TRANSPORTS[transport]}
     session = Session(config, folder, env=env)
-    session.start(show=lambda line: None)
-    assert session.started_at is not None
-    probe = subprocess.Popen(
-        [sys.executable, str(Path(__file__).with_name('probe.py')), '--rate', f'{rate:g}',
-         '--duration', f'{session.started_at - time.monotonic() + duration:.2f}'],
-        stdout=subprocess.PIPE, text=True, env={**os.environ, **env})
-    try:
-        shares = trial_cpu_shares(session, duration)
-    finally:
-        session.stop()
+    with Processes() as processes:
+        session.start(show=lambda line: None)
+        try:
+            assert session.started_at is not None
+            probe = processes.start(
+                [sys.executable, str(Path(__file__).with_name('probe.py')), '--rate',
+                 f'{rate:g}', '--duration',
+                 f'{session.started_at - time.monotonic() + duration:.2f}'],
+                stdout=subprocess.PIPE, text=True, env={**os.environ, **env})
+            shares = trial_cpu_shares(session, duration)
+        finally:
+            session.stop()
         probe_output = probe.communicate(timeout=60.0)[0]
     plants = [timing(session.output(f'{joint}_plant'), joint) for joint in JOINT_NAMES]
     periods = int(sum(p['periods'] for p in plants))

@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import os
 import random
+import signal
 import statistics
 import subprocess
 import sys
@@ -43,7 +44,7 @@ from exo_has_bringup.plan import SessionConfig
 from exo_has_bringup.runner import Session
 from exo_has_common.joints import JOINT_NAMES
 from exo_has_msgs.msg import SafetyEvent
-from exo_has_runtime.processes import NodeProcess
+from exo_has_runtime.processes import NodeProcess, Processes
 
 #: Discovery settings compared: name -> environment of the robot's and the operator's nodes.
 SETTINGS: dict[str, tuple[dict[str, str], dict[str, str]]] = {
@@ -71,19 +72,20 @@ def first_message(hosts: VirtualHosts | None, robot_env: dict[str, str],
         talker.wait_for_output('READY', timeout_s=30.0)
         prefix = ['nsenter', f'--net={netns[OPERATOR]}'] if netns[OPERATOR] else []
         start = time.monotonic()
-        listener = subprocess.Popen(
-            [*prefix, sys.executable, '-u', '-m', 'exo_has_runtime.topic_tool', 'record',
-             TOPIC.rsplit('=', 1)[0] + '=std_msgs/msg/String', '--count', '1', '--duration',
-             f'{DISCOVERY_TIMEOUT:g}', '--name', 'listener'], stdout=subprocess.PIPE,
-            text=True, env={**os.environ, **operator_env}, cwd=tempfile.gettempdir())
-        assert listener.stdout is not None
-        found = None
-        for line in listener.stdout:
-            if line.startswith('{'):
-                found = time.monotonic() - start
-                break
-        listener.kill()
-        listener.wait()
+        with Processes() as processes:
+            listener = processes.start(
+                [*prefix, sys.executable, '-u', '-m', 'exo_has_runtime.topic_tool', 'record',
+                 TOPIC.rsplit('=', 1)[0] + '=std_msgs/msg/String', '--count', '1',
+                 '--duration', f'{DISCOVERY_TIMEOUT:g}', '--name', 'listener'],
+                stdout=subprocess.PIPE, text=True, env={**os.environ, **operator_env},
+                cwd=tempfile.gettempdir())
+            assert listener.stdout is not None
+            found = None
+            for line in listener.stdout:
+                if line.startswith('{'):
+                    found = time.monotonic() - start
+                    break
+            processes.end(listener, first=signal.SIGKILL)
         return found
 
 

@@ -26,6 +26,8 @@ from pathlib import Path
 
 from common import describe_machine, write_results
 
+from exo_has_runtime.processes import Processes
+
 ROUND_TRIPS = 20_000
 REPEATS = 3
 
@@ -76,9 +78,11 @@ def sleep_loop(rate: float, duration: float = 5.0) -> float:
 
 def idle_timer(executor: str) -> float:
     """CPU per tick of an rclpy node with one empty 200 Hz timer [us] (in a child process)."""
-    out = subprocess.run([sys.executable, str(Path(__file__).resolve()), '_timer'],
-                         env={**os.environ, 'EXO_HAS_EXECUTOR': executor},
-                         capture_output=True, text=True, check=True, timeout=120)
+    with Processes() as processes:
+        out = processes.run([sys.executable, str(Path(__file__).resolve()), '_timer'],
+                            env={**os.environ, 'EXO_HAS_EXECUTOR': executor},
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            check=True, timeout=120)
     return float(json.loads(out.stdout.strip().splitlines()[-1])['cpu_us_per_tick'])
 
 

@@ -25,8 +25,11 @@ import signal
 import subprocess
 import threading
 import time
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from exo_has_runtime.processes import Processes
 
 #: A sample line of ``cyclictest -v``: thread index, cycle, latency [us].
 SAMPLE = re.compile(r'^\s*(\d+):\s*(\d+):\s*(\d+)\s*$')
@@ -94,6 +97,7 @@ class Witness:
         self.priority = priority
         self.interval = interval
         self.threshold = threshold
+        self._processes = Processes()
         self._process: subprocess.Popen[str] | None = None
         self._reader: threading.Thread | None = None
         # Per thread: wall-clock time of its first sample [s]; then every sample's time is
@@ -109,26 +113,24 @@ class Witness:
     def __enter__(self) -> Witness:
         cpus = ','.join(str(cpu) for cpu in sorted(self.cpus))
         self._steal_before = steal_seconds(self.cpus)
-        # stdbuf: line-buffered, so that a sample's arrival dates its thread's first cycle.
-        self._process = subprocess.Popen(
-            ['stdbuf', '-oL', 'cyclictest', '--mlockall', '--quiet', '--verbose',
-             f'--priority={self.priority}', f'--affinity={cpus}',
-             f'--threads={len(self.cpus)}', '--distance=0',
-             f'--interval={round(self.interval * 1e6)}',
-             f'--latency={NO_LATENCY_TARGET}'],
-            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-        self._reader = threading.Thread(target=self._read, name='witness', daemon=True)
-        self._reader.start()
+        with ExitStack() as stack:  # cyclictest ends if a step after its start fails
+            stack.enter_context(self._processes)
+            # stdbuf: line-buffered, so that a sample's arrival dates its thread's first cycle.
+            self._process = self._processes.start(
+                ['stdbuf', '-oL', 'cyclictest', '--mlockall', '--quiet', '--verbose',
+                 f'--priority={self.priority}', f'--affinity={cpus}',
+                 f'--threads={len(self.cpus)}', '--distance=0',
+                 f'--interval={round(self.interval * 1e6)}',
+                 f'--latency={NO_LATENCY_TARGET}'],
+                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+            self._reader = threading.Thread(target=self._read, name='witness', daemon=True)
+            self._reader.start()
+            stack.pop_all()
         return self
 
     def __exit__(self, *exc: object) -> None:
         assert self._process is not None and self._reader is not None
-        self._process.send_signal(signal.SIGINT)
-        try:
-            self._process.wait(timeout=5.0)
-        except subprocess.TimeoutExpired:
-            self._process.kill()
-            self._process.wait()
+        self._processes.end(self._process, first=signal.SIGINT)  # cyclictest's own stop
         self._reader.join(timeout=5.0)
         after = steal_seconds(self.cpus)
         self.steal = {cpu: after[cpu] - self._steal_before.get(cpu, after[cpu])

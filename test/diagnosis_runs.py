@@ -20,6 +20,7 @@ from typing import Any
 
 from rigs import rig_file
 
+from exo_has_runtime.tether import tie_to_parent
 from exo_has_sim.diagnosis.cli import STRUCTURE_STATUS, main
 
 
@@ -57,7 +58,10 @@ def diagnosis_pool() -> Iterator[Pool]:
     saved = {name: os.environ.get(name) for name in THREAD_VARIABLES}
     os.environ.update(dict.fromkeys(THREAD_VARIABLES, '1'))
     try:
-        pool = multiprocessing.get_context('spawn').Pool(os.cpu_count() or 1)
+        # Tethered: a worker ends with the test run, even one killed by SIGKILL, rather than
+        # diagnosing on for minutes.
+        pool = multiprocessing.get_context('spawn').Pool(os.cpu_count() or 1, tie_to_parent,
+                                                         (os.getpid(),))
     finally:
         for name, value in saved.items():
             if value is None:

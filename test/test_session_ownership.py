@@ -32,7 +32,7 @@ from exo_has_bringup.runner import ORPHAN_BOUND, STOP_BOUND, Session
 from exo_has_common.bag import bag_summary
 from exo_has_common.joints import JOINT_NAMES
 from exo_has_msgs.msg import SafetyEvent
-from exo_has_runtime.processes import NodeProcess
+from exo_has_runtime.processes import NodeProcess, tethered
 
 pytestmark = pytest.mark.process  # every test here starts processes
 
@@ -52,8 +52,8 @@ def start_demo(folder: Path, durations: tuple[float, float] = (30.0, 5.0),
     """Start ``exo-has demo``, its output to ``demo.log`` (its errors too unless ``errors``)."""
     log = (folder / 'demo.log').open('wb')
     return subprocess.Popen(
-        [sys.executable, '-m', 'exo_has_runtime.cli', 'demo', '--durations',
-         *map(str, durations), '--output', str(folder)],
+        tethered([sys.executable, '-m', 'exo_has_runtime.cli', 'demo', '--durations',
+                  *map(str, durations), '--output', str(folder)]),
         stdout=log, stderr=errors.open('wb') if errors else subprocess.STDOUT, cwd=folder,
         env={**os.environ, **(env or {})},
         # A shell's background job inherits SIGINT ignored, and Python then raises no

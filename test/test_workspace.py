@@ -106,6 +106,7 @@ def test_the_installed_plant_executable_starts_publishes_and_stops_cleanly(ros_c
     from rclpy.qos import qos_profile_sensor_data
 
     from exo_has_msgs.msg import HasState
+    from exo_has_runtime.processes import tethered
 
     plant = Path(get_package_prefix('exo_has_sim')) / 'lib' / 'exo_has_sim' / 'plant'
     node = Node('workspace_listener', context=ros_context)
@@ -115,7 +116,7 @@ def test_the_installed_plant_executable_starts_publishes_and_stops_cleanly(ros_c
     executor = SingleThreadedExecutor(context=ros_context)
     executor.add_node(node)
     with tempfile.TemporaryFile() as log:
-        process = subprocess.Popen([str(plant), '--ros-args', '-p', 'joint:=left_knee'],
+        process = subprocess.Popen(tethered([str(plant), '--ros-args', '-p', 'joint:=left_knee']),
                                    stdout=log, stderr=subprocess.STDOUT,
                                    cwd=tempfile.gettempdir())
         try:

@@ -14,6 +14,7 @@ import pytest
 from exo_has_bringup import hosts
 from exo_has_bringup.errors import HostsUnavailableError
 from exo_has_bringup.hosts import check_privileges
+from exo_has_runtime.processes import tethered
 
 RUNNER = """
 import time
@@ -44,7 +45,7 @@ def test_a_missing_tool_is_named_with_its_package(monkeypatch):
 def test_a_runner_killed_by_sigkill_leaves_no_namespace_link_or_holder_behind(
         virtual_hosts_available):
     before = {p.name for p in Path('/sys/class/net').iterdir()}
-    runner = subprocess.Popen([sys.executable, '-c', RUNNER], stdout=subprocess.PIPE,
+    runner = subprocess.Popen(tethered([sys.executable, '-c', RUNNER]), stdout=subprocess.PIPE,
                               text=True, cwd='/tmp')
     try:
         namespaces = runner.stdout.readline().split()

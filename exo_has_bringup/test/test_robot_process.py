@@ -30,6 +30,7 @@ from exo_has_common.joints import JOINT_NAMES, joint_type_of
 from exo_has_driver.events import SafetyKind, Severity
 from exo_has_driver.hardware import cia402
 from exo_has_driver.hardware.bus import random_multicast_group
+from exo_has_runtime.processes import tethered
 from exo_has_sim.kinematics import Linkage
 from exo_has_sim.parameters import load_parameters
 
@@ -52,7 +53,7 @@ class Process:
     """A child process whose stdout lines are collected by a thread."""
 
     def __init__(self, arguments: list[str]) -> None:
-        self.popen = subprocess.Popen(arguments, stdout=subprocess.PIPE,
+        self.popen = subprocess.Popen(tethered(arguments), stdout=subprocess.PIPE,
                                       stderr=subprocess.STDOUT, stdin=subprocess.PIPE, text=True)
         self.lines: queue.Queue[str] = queue.Queue()
         self.output: list[str] = []
@@ -127,12 +128,12 @@ class Bridge:
 
 def test_the_loop_process_tracks_a_reference_and_holds_when_its_sender_dies(socket_dir):
     group = random_multicast_group()
-    devices = Process([sys.executable, '-m', 'exo_has_driver.devices.main', '--interface',
-                       'udp_multicast', '--channel', group,
-                       '--realtime-priority', f'{devices_priority(REALTIME_PRIORITY)}'])
     bridge = Bridge(socket_dir)
-    loop = sender = None
+    devices = loop = sender = None
     try:
+        devices = Process([sys.executable, '-m', 'exo_has_driver.devices.main', '--interface',
+                           'udp_multicast', '--channel', group,
+                           '--realtime-priority', f'{devices_priority(REALTIME_PRIORITY)}'])
         devices.expect('can devices ready')
         loop = Process([sys.executable, '-m', 'exo_has_bringup.robot_main', '--interface',
                         'udp_multicast', '--channel', group, '--rate', f'{RATE}',

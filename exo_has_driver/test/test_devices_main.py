@@ -23,6 +23,7 @@ from exo_has_driver.devices import Rig
 from exo_has_driver.devices.main import execute, main
 from exo_has_driver.errors import FaultInjectionError
 from exo_has_driver.hardware.bus import isolate_multicast, random_multicast_group
+from exo_has_runtime.processes import tethered
 
 TIMEOUT = 30.0  # s: a fresh interpreter imports numpy and the compiled model
 
@@ -139,8 +140,9 @@ def test_the_process_runs_the_devices_over_udp_multicast_and_takes_stdin_faults(
     bus = can.Bus(interface='udp_multicast', channel=group)
     assert isolate_multicast(bus)  # other tests on the machine use the same port
     process = subprocess.Popen(
-        [sys.executable, '-m', 'exo_has_driver.devices.main', '--interface', 'udp_multicast',
-         '--channel', group, '--joints', 'left_hip', '--realtime-priority', '10'],
+        tethered([sys.executable, '-m', 'exo_has_driver.devices.main', '--interface',
+                  'udp_multicast', '--channel', group, '--joints', 'left_hip',
+                  '--realtime-priority', '10']),
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     lines: queue.Queue[str] = queue.Queue()
     threading.Thread(target=_lines, args=(process, lines), daemon=True).start()

@@ -25,7 +25,7 @@ from exo_has_common.topics import (
 from exo_has_driver.driver_node import master_failure
 from exo_has_driver.hardware.bus import random_multicast_group
 from exo_has_msgs.msg import HasCommand, HasState, SafetyEvent
-from exo_has_runtime.processes import NodeProcess
+from exo_has_runtime.processes import NodeProcess, tethered
 from exo_has_runtime.profiles import SAFETY_EVENT_QOS
 
 DRIVER = 'exo_has_driver.driver_node'
@@ -54,9 +54,10 @@ class Devices:
         self.log = tempfile.NamedTemporaryFile(prefix='can_devices-', suffix='.log',
                                                delete=False)
         self.process = subprocess.Popen(
-            [sys.executable, '-u', '-m', 'exo_has_driver.devices.main', '--interface',
-             'udp_multicast', '--channel', group, '--joints', *JOINTS,
-             '--realtime-priority', str(REALTIME_PRIORITY - 1)],  # under the bus thread
+            tethered([sys.executable, '-u', '-m', 'exo_has_driver.devices.main', '--interface',
+                      'udp_multicast', '--channel', group, '--joints', *JOINTS,
+                      # under the bus thread
+                      '--realtime-priority', str(REALTIME_PRIORITY - 1)]),
             stdin=subprocess.PIPE, stdout=self.log, stderr=subprocess.STDOUT, text=True,
             cwd=tempfile.gettempdir())
 

@@ -7,10 +7,14 @@ then SIGKILL. The process is tied to the one that started it
 dies, so no node outlives the session or test that owns it. It runs in a session (and process
 group) of its own, so that a terminal's Ctrl-C or hang-up reaches only the owner, which stops
 its nodes in order.
+
+:class:`Processes` does the same for any command (``taskset``, ``cyclictest``, a spinning
+``python -c``): the benchmarks' processes and the tests' own.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import signal
@@ -22,7 +26,7 @@ import weakref
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
-from typing import IO
+from typing import IO, Any
 
 
 class NodeProcess:
@@ -161,3 +165,86 @@ class NodeProcess:
         """End the process at once (SIGKILL), as a crash would."""
         self.process.kill()
         self.process.wait()
+
+
+#: How long [s] the processes of :class:`Processes` have to end on their first signal.
+GRACE = 5.0
+
+
+def tethered(command: Sequence[str]) -> list[str]:
+    """Return ``command`` run so that it gets SIGTERM when this process dies, even by SIGKILL.
+
+    Through :mod:`exo_has_runtime.tether` (``--exec``): Linux signals it when the thread that
+    started it ends, so start it from a thread that outlives it (the main thread).
+    """
+    return [sys.executable, '-m', 'exo_has_runtime.tether', str(os.getpid()), '--exec',
+            *command]
+
+
+class Processes:
+    """Processes of any command (a benchmark's), each ended however the ``with`` closes.
+
+    Each runs tethered (:func:`tethered`: it ends with this process, even one killed by
+    SIGKILL) in a session and process group of its own (a terminal's Ctrl-C reaches only the
+    owner, which ends them here). On exit, normal or by an exception (a set-up step that
+    failed, KeyboardInterrupt), every process still running gets SIGTERM with its group, then
+    SIGKILL after ``grace`` seconds, and is reaped.
+
+    Parameters
+    ----------
+    grace : float
+        Time [s] to end on SIGTERM before SIGKILL.
+
+    """
+
+    def __init__(self, grace: float = GRACE) -> None:
+        self.grace = grace
+        self.started: list[subprocess.Popen[Any]] = []
+
+    def __enter__(self) -> Processes:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.end(*self.started)
+
+    def start(self, command: Sequence[str], **options: Any) -> subprocess.Popen[Any]:
+        """Start ``command`` (options as :class:`subprocess.Popen` takes them); return it."""
+        process = subprocess.Popen(tethered(command), start_new_session=True, **options)
+        self.started.append(process)
+        return process
+
+    def run(self, command: Sequence[str], timeout: float | None = None, check: bool = False,
+            **options: Any) -> subprocess.CompletedProcess[Any]:
+        """Run ``command`` to its end, as :func:`subprocess.run` would, and return what it gave.
+
+        Its output is captured where ``options`` say (``stdout=subprocess.PIPE``...). Past
+        ``timeout`` [s], :class:`subprocess.TimeoutExpired`; with ``check``, an exit code
+        other than 0 raises :class:`subprocess.CalledProcessError`. Either way, and on any
+        other exception, the process is ended when the ``with`` closes.
+        """
+        process = self.start(command, **options)
+        stdout, stderr = process.communicate(timeout=timeout)
+        if check and process.returncode != 0:
+            raise subprocess.CalledProcessError(process.returncode, list(command), stdout,
+                                                stderr)
+        return subprocess.CompletedProcess(list(command), process.returncode, stdout, stderr)
+
+    def end(self, *processes: subprocess.Popen[Any], first: int = signal.SIGTERM) -> None:
+        """End ``processes`` and their groups: ``first``, then SIGKILL after the grace time."""
+        running = [p for p in processes if p.returncode is None]
+        for process in running:
+            signal_group(process, first)
+        deadline = time.monotonic() + self.grace
+        for process in running:
+            try:
+                process.wait(max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                signal_group(process, signal.SIGKILL)
+                process.wait()
+
+
+def signal_group(process: subprocess.Popen[Any], number: int) -> None:
+    """Send signal ``number`` to the process group that ``process`` (not yet reaped) leads."""
+    # Until it is reaped, its id is its group's and no other process's.
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(process.pid, number)

@@ -19,6 +19,10 @@ module starts a thread (``setns`` and ``unshare`` act on the calling thread, and
 threads inherit it), which is why Python 3.11, without ``os.setns``, calls libc. A namespace
 made so lives as long as a process in it: when the runner dies, its tethered processes end and
 the namespace goes with them (:mod:`exo_has_bringup.hosts`).
+
+``--exec COMMAND ARGS...`` in place of ``MODULE`` runs a program instead (``execvp``): the
+request outlives the exec (not into a set-user-ID program), so that a benchmark's spinners and
+tools (``taskset``, ``cyclictest``) end with it too (``bench/common.py``).
 """
 
 from __future__ import annotations
@@ -40,6 +44,9 @@ CLONE_NEWNET = 0x40000000
 
 #: Exit code when the network namespace could not be entered.
 NETNS_EXIT = 3
+
+#: Exit code when the program of ``--exec`` could not be run: as a shell reports it.
+EXEC_EXIT = 127
 
 
 def enter_network_namespace(path: str) -> None:
@@ -90,9 +97,9 @@ def tie_to_parent(parent_pid: int) -> None:
 
 
 def main() -> None:
-    """Tie this process to its parent, then run the module with its arguments."""
+    """Tie this process to its parent, then run the module (or program) with its arguments."""
     usage = ('usage: python -m exo_has_runtime.tether PARENT_PID [--netns PATH|new] '
-             'MODULE [ARGS...]')
+             '(MODULE | --exec COMMAND) [ARGS...]')
     if len(sys.argv) < 3 or not sys.argv[1].isdigit():
         sys.exit(usage)
     tie_to_parent(int(sys.argv[1]))
@@ -107,6 +114,14 @@ def main() -> None:
                   file=sys.stderr)
             raise SystemExit(NETNS_EXIT) from None
         rest = rest[2:]
+    if rest[0] == '--exec':
+        if len(rest) < 2:
+            sys.exit(usage)
+        try:
+            os.execvp(rest[1], rest[1:])
+        except OSError as exc:
+            print(f'tether: cannot run {rest[1]}: {exc.strerror}', file=sys.stderr)
+            raise SystemExit(EXEC_EXIT) from None
     module = rest[0]
     sys.argv = [module, *rest[1:]]
     runpy.run_module(module, run_name='__main__', alter_sys=True)

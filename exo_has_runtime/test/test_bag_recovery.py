@@ -15,6 +15,7 @@ from sensor_msgs.msg import JointState
 from exo_has_common.bag import BagWriter, McapRecordReader, read_messages, recover_bag
 from exo_has_common.errors import BagError, BagNotFoundError, MalformedBagError, UnfinishedBagError
 from exo_has_msgs.msg import HasCommand
+from exo_has_runtime.processes import tethered
 from exo_has_runtime.recording import replay_qos
 
 T0_NS = 1_700_000_000_000_000_000
@@ -179,7 +180,7 @@ def test_a_writer_killed_mid_write_is_recovered_with_every_message_it_flushed(tm
         '        writer.flush(wait=True)\n'
         '        print("FLUSHED", i + 1, flush=True)\n'
         '        time.sleep(0.01)\n')
-    process = subprocess.Popen([sys.executable, '-c', script, str(tmp_path / 'bag')],
+    process = subprocess.Popen(tethered([sys.executable, '-c', script, str(tmp_path / 'bag')]),
                                stdout=subprocess.PIPE, text=True, cwd=tempfile.gettempdir())
     try:
         flushed = [int(process.stdout.readline().split()[1]) for _ in range(5)][-1]

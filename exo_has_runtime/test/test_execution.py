@@ -11,7 +11,7 @@ from rclpy.node import Node
 
 from exo_has_msgs.msg import HasCommand
 from exo_has_runtime.execution import executor_kind, make_executor, spin
-from exo_has_runtime.processes import NodeProcess
+from exo_has_runtime.processes import NodeProcess, tethered
 
 
 def test_events_executor_still_fails_callbacks_that_take_the_message_info(ros_context):
@@ -45,7 +45,8 @@ def test_events_executor_spin_still_ignores_sigint_while_a_timer_runs():
         print('spinning', flush=True)
         executor.spin()
     """)
-    process = subprocess.Popen([sys.executable, '-c', code], stdout=subprocess.PIPE, text=True)
+    process = subprocess.Popen(tethered([sys.executable, '-c', code]), stdout=subprocess.PIPE,
+                               text=True)
     try:
         assert process.stdout is not None
         assert process.stdout.readline().strip() == 'spinning'

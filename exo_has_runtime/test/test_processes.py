@@ -2,9 +2,15 @@
 
 from __future__ import annotations
 
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
 import pytest
 
-from exo_has_runtime.processes import NodeProcess
+from exo_has_runtime.processes import NodeProcess, Processes
 
 pytestmark = pytest.mark.process  # every test here starts processes
 
@@ -50,3 +56,46 @@ def test_a_log_the_caller_named_is_kept(tmp_path) -> None:
         process.wait()
     del process
     assert (tmp_path / 'kept.log').read_text().startswith('usage')
+
+
+#: Ignores SIGTERM, starts a child in its process group, says the child's pid, then waits.
+STUBBORN = """
+import signal, subprocess, time
+signal.signal(signal.SIGTERM, signal.SIG_IGN)
+print(subprocess.Popen(['sleep', '60']).pid, flush=True)
+time.sleep(60)
+"""
+
+
+def test_processes_that_ignore_sigterm_are_killed_with_their_group_after_the_grace() -> None:
+    with Processes(grace=0.2) as processes:
+        process = processes.start([sys.executable, '-c', STUBBORN], stdout=subprocess.PIPE,
+                                  text=True)
+        assert process.stdout is not None
+        child = int(process.stdout.readline())
+    assert process.returncode == -signal.SIGKILL
+    # The child, in the group and ignoring SIGTERM as well (inherited), got the SIGKILL too:
+    # gone once reaped by whoever adopted it, a zombie until then, dying a moment before.
+    deadline = time.monotonic() + 5.0
+    while state(child) not in ('Z', 'gone') and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert state(child) in ('Z', 'gone')
+
+
+def state(pid: int) -> str:
+    """Return a process's state letter (``Z``: ended, not reaped), or ``gone``."""
+    try:
+        return Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()[0]
+    except OSError:
+        return 'gone'
+
+
+def test_a_run_that_fails_its_check_or_overruns_its_timeout_says_so() -> None:
+    with Processes() as processes:
+        assert processes.run(['echo', 'hi'], stdout=subprocess.PIPE, text=True).stdout == 'hi\n'
+        with pytest.raises(subprocess.CalledProcessError):
+            processes.run(['false'], check=True)
+        with pytest.raises(subprocess.TimeoutExpired):
+            processes.run(['sleep', '60'], timeout=0.2)
+        sleeping = processes.started[-1]
+    assert sleeping.returncode == -signal.SIGTERM  # ended on leaving the with

@@ -15,7 +15,7 @@ from sensor_msgs.msg import JointState
 
 from exo_has_common.bag import BagWriter, bag_topics, offered_qos, read_messages, recover_bag
 from exo_has_msgs.msg import HasCommand, SafetyEvent
-from exo_has_runtime.processes import NodeProcess
+from exo_has_runtime.processes import NodeProcess, tethered
 from exo_has_runtime.recording import subscription_qos
 
 RECORDER = 'exo_has_runtime.recorder'
@@ -258,7 +258,7 @@ def test_a_replay_waits_for_its_subscribers_acknowledgements_and_names_a_topic_l
         for i in range(20):
             writer.write('/joint_reference', 1_700_000_000_000_000_000 + i * 50_000_000,
                          serialize_message(JointState(position=[float(i)])))
-    listener = subprocess.Popen([sys.executable, '-c', LISTENER], stdout=subprocess.PIPE,
+    listener = subprocess.Popen(tethered([sys.executable, '-c', LISTENER]), stdout=subprocess.PIPE,
                                 text=True, cwd=tmp_path)
     try:
         with NodeProcess(REPLAY, [str(source), '--wait-for-subscribers']) as replay:

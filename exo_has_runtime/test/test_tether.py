@@ -8,10 +8,11 @@ import subprocess
 import sys
 import textwrap
 import time
+from pathlib import Path
 
 import pytest
 
-from exo_has_runtime.tether import ORPHANED_EXIT
+from exo_has_runtime.tether import EXEC_EXIT, ORPHANED_EXIT
 
 pytestmark = pytest.mark.process  # every test here starts processes
 
@@ -51,6 +52,52 @@ def test_a_tethered_child_gets_sigterm_when_its_parent_is_killed(tmp_path):
     finally:
         if parent.poll() is None:
             parent.kill()
+
+
+EXEC_PARENT = """
+import os, subprocess, sys, time
+child = subprocess.Popen([sys.executable, '-m', 'exo_has_runtime.tether', str(os.getpid()),
+                          '--exec', 'sleep', '60'])
+print(child.pid, flush=True)
+time.sleep(60)
+"""
+
+
+def process_state(pid: int) -> str:
+    """Return a process's state letter (``Z``: ended, not yet reaped), ``-`` if it is gone."""
+    try:
+        return Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()[0]
+    except OSError:
+        return '-'
+
+
+def test_a_tethered_program_gets_sigterm_when_its_parent_is_killed():
+    parent = subprocess.Popen([sys.executable, '-c', EXEC_PARENT], stdout=subprocess.PIPE,
+                              text=True)
+    try:
+        assert parent.stdout is not None
+        pid = int(parent.stdout.readline())
+        deadline = time.monotonic() + 20.0
+        while b'sleep' not in Path(f'/proc/{pid}/cmdline').read_bytes():  # the exec done
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        parent.send_signal(signal.SIGKILL)
+        parent.wait()
+        deadline = time.monotonic() + 5.0
+        while process_state(pid) not in 'Z-' and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert process_state(pid) in 'Z-'
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+
+
+def test_a_program_that_cannot_run_is_named():
+    result = subprocess.run([sys.executable, '-m', 'exo_has_runtime.tether', str(os.getpid()),
+                             '--exec', 'no-such-program-here'],
+                            capture_output=True, text=True, timeout=30, check=False)
+    assert result.returncode == EXEC_EXIT
+    assert 'cannot run no-such-program-here' in result.stderr
 
 
 def test_a_child_whose_parent_is_already_gone_does_not_run(tmp_path):
