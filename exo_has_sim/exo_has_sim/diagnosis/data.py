@@ -399,7 +399,25 @@ def write_csv(measurement: Measurement, path: str | Path) -> None:
 
 
 def read_bag(path: str | Path, joint: str, limits: Limits = Limits()) -> Measurement:
-    """Read one joint's HAS state and command topics from a rosbag2 bag.
+    """Read one joint's HAS state and command topics from a rosbag2 bag, and check them.
+
+    :func:`bag_columns`, then :func:`check_columns`.
+
+    Raises
+    ------
+    MeasurementError
+        For an unknown joint, a bag without the joint's states, and what
+        :func:`check_columns` refuses.
+    exo_has_common.errors.BagError
+        For a missing, unfinished or corrupt bag (naming the command that recovers it).
+
+    """
+    columns, source = bag_columns(path, joint)
+    return check_columns(columns, 'has', source, limits)
+
+
+def bag_columns(path: str | Path, joint: str) -> tuple[dict[str, FloatArray], str]:
+    """Read one joint's HAS state and command topics from a rosbag2 bag, as columns.
 
     The time base is the states' header stamps; the command of a sample is the last
     HasCommand stamped before the middle of the interval that starts at the sample (the
@@ -411,11 +429,15 @@ def read_bag(path: str | Path, joint: str, limits: Limits = Limits()) -> Measure
     stopped the model's motor where the plant's turned at 7.3 rad/s). The cylinder reference
     comes from ``joint_reference`` through the joint's linkage when the bag holds it.
 
+    Returns
+    -------
+    tuple
+        The columns by CSV name (unchecked, the stamps as they are) and the data's origin.
+
     Raises
     ------
     MeasurementError
-        For an unknown joint, a bag without the joint's states, and what
-        :func:`check_columns` refuses.
+        For an unknown joint or a bag without the joint's states.
     exo_has_common.errors.BagError
         For a missing, unfinished or corrupt bag (naming the command that recovers it).
 
@@ -482,4 +504,4 @@ def read_bag(path: str | Path, joint: str, limits: Limits = Limits()) -> Measure
         when = (np.array([r[0] for r in references], dtype=np.int64) - origin) * 1e-9
         angle = np.interp(time, when, [r[1] for r in references])
         columns['reference'] = np.asarray(linkage.position(angle), dtype=float)
-    return check_columns(columns, 'has', source, limits)
+    return columns, source
