@@ -4,9 +4,9 @@ A window's initial state comes from the data (:mod:`~exo_has_sim.diagnosis.plant
 position and, when measured, the pressure, smoothed, with the velocity (and, without a pressure
 sensor, the pressure from the force balance, Eq. 8), and the measured motor speed. The spool,
 and a motor speed not measured, come from the commands sent before the window, through the
-model's own speed loop and valve. Without a
-load-force signal the load is one constant, fitted with the baseline, or, with the pressure
-unmeasured too, a polynomial in time of each window's own (:meth:`HasPlant.predict`).
+model's own speed loop and valve. Without a load-force signal the load is one constant, fitted
+with the baseline, or, with the pressure unmeasured too, a polynomial in time of each window's
+own (:meth:`HasPlant.predict`).
 
 The model is integrated by the compiled integrator of :mod:`exo_has_sim.integrator` (that of
 ``simulate_open_loop``, at tighter tolerances, see :data:`HAS_ATOL`), every (candidate,
