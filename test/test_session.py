@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
-from session_observer import observed_session, outside_stalls, read_so_far
+from session_observer import bag_so_far, observed_session, outside_stalls, read_so_far
 
 from exo_has_bringup.analysis import tracking
 from exo_has_bringup.plan import SessionConfig, recorded_topics
@@ -176,7 +176,7 @@ def test_the_nominal_model_predicts_every_window_of_each_joint_as_the_sampling_a
     # speed the measured one) and the nominal prediction errs by what the bag's sampling
     # leaves, the figure compare.py's module docstring states.
     running, _observer = session
-    bag = Path(running.folder) / 'bag_so_far'  # read_so_far's copy, closed
+    bag = bag_so_far(running)  # the copy the recorded fixture read, closed
     for joint in JOINT_NAMES:
         plant = _longest_stretch(bag, joint)
         m = plant.measurement
