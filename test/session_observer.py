@@ -128,11 +128,16 @@ def observed_session(config: SessionConfig, folder: Path,
         running.stop()
 
 
+def bag_so_far(running: Session) -> Path:
+    """Return where :func:`read_so_far` puts the copy of a running session's bag."""
+    return Path(running.folder) / 'bag_so_far'
+
+
 def read_so_far(running: Session) -> SessionData:
     """Read a running session's bag back while the session goes on standing."""
     # The bag is written by chunks: read a copy closed by recovery while the recorder is on.
     assert running.bag is not None
-    copy = Path(running.folder) / 'bag_so_far'
+    copy = bag_so_far(running)
     recover_bag(running.bag, copy)
     return read_session(copy)
 

@@ -167,6 +167,28 @@ def test_jittery_stamps_are_resampled_and_a_long_gap_is_refused():
         check_columns(gap, 'has', 'log', HIP)
 
 
+def test_a_held_input_on_jittering_stamps_keeps_its_mean_over_each_grid_period():
+    # A plant node's ticks: on the 5 ms grid, every fourth 0.4 ms late. The command sent at a
+    # tick is held to the next; what the plant received over a grid period is its mean there,
+    # not the value held at the grid instant (a whole period late after a late tick).
+    table = columns()
+    table['time'] = table['time'] + np.where(np.arange(400) % 4 == 1, 0.4e-3, 0.0)
+    table['motor_speed_command'] = np.where(np.arange(400) % 4 < 2, 10.0, -10.0)
+    m = check_columns(table, 'has', 'log', HIP)
+    assert any('resampled' in note for note in m.notes)
+    sent, grid = table['time'], m.time
+    k = np.arange(1, 398)
+    # Grid period k holds command k-1 until stamp k, then command k.
+    share = (sent[k] - grid[k]) / m.period
+    expected = share * table['motor_speed_command'][k - 1] \
+        + (1.0 - share) * table['motor_speed_command'][k]
+    assert_allclose(m.input[k], expected, atol=1e-9)
+    # The volume a pump would have delivered is kept.
+    assert_allclose(np.sum(m.input[:398]) * m.period,
+                    np.sum(table['motor_speed_command'][:397] * np.diff(sent[:398]))
+                    + table['motor_speed_command'][397] * (grid[398] - sent[397]), rtol=1e-9)
+
+
 def test_one_joints_topics_are_read_from_a_bag(tmp_path):
     from rclpy.serialization import serialize_message
 
@@ -181,14 +203,18 @@ def test_one_joints_topics_are_read_from_a_bag(tmp_path):
         writer.add_topic('/right_hip/has_state', 'exo_has_msgs/msg/HasState')
         for k in range(samples):
             stamp = t0 + k * 5_000_000
+            # The state's motor_speed_command, the command in force (the plant's initial
+            # 3 rad/s before its first command), counts only before the first one recorded.
             state = HasState(joint='left_knee', position=0.05 + 1e-5 * k, pressure_a=2e6,
-                             motor_speed=3.0, motor_speed_command=0.0, load_force=math.nan)
+                             motor_speed=3.0, motor_speed_command=3.0, load_force=math.nan)
             state.header.stamp.sec, state.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
             writer.write('/left_knee/has_state', stamp, serialize_message(state))
             other = HasState(joint='right_hip', position=0.1)
             other.header.stamp.sec, other.header.stamp.nanosec = state.header.stamp.sec, \
                 state.header.stamp.nanosec
             writer.write('/right_hip/has_state', stamp, serialize_message(other))
+            if k < 5:  # the recorder took the commands from the sixth state on
+                continue
             # The controller answers 1 ms after the state, commanding k rad/s.
             command = HasCommand(joint='left_knee', motor_speed=1.0 * k, enable=k != 7)
             answer = stamp + 1_000_000
@@ -200,6 +226,7 @@ def test_one_joints_topics_are_read_from_a_bag(tmp_path):
     assert_allclose(m.period, 0.005, rtol=1e-9)
     expected = 1.0 * np.arange(samples)
     expected[7] = 0.0  # disabled: the motor stops
+    expected[:5] = 3.0  # before the first command recorded: the one in force
     assert_allclose(m.input, expected)
     assert_allclose(m.position, 0.05 + 1e-5 * np.arange(samples), rtol=1e-12)
     assert sorted(m.optional) == ['motor_speed', 'pressure_a', 'pressure_b']  # load NaN

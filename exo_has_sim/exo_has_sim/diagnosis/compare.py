@@ -16,6 +16,20 @@ window's burn-in reads the end of the window before it as input only).
 
 ``fit = 100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` [%] per output, as MATLAB's ``compare``
 (normalised root-mean-square error), over the concatenated validation windows.
+
+What the nominal model reaches where it is the plant: on the bags of eight sessions of ours (four
+of ``exo-has demo``, four of test/test_session.py; each joint, 32 records), every window starting
+from the state the plant was in, the validated fits were 99.0 to 99.96 % for the position, 97.6 to
+99.8 % for the motor speed and 88.9 to 97.5 % for the pressure (at most 93.2 % at the hips), and no
+validation window erred by more than 0.30 mm, 5.2 rad/s and 0.33 MPa RMS. Not 100 % because of the
+sampling: the plant node ticks when its timer fires, 0.1 to 24 ms apart, and integrates each span
+under the newest command and load, while the record is resampled onto a uniform grid (the states
+interpolated, the command averaged over each period, to which the motor's 5 ms lag answers
+otherwise than to its parts), which moves a motor's reversal by part of a period, where the compact
+valve's free mode drains the chamber within milliseconds (the window that erred most, a knee's,
+held one). The plant node does not quantise its states (float64 throughout); its own integration,
+at looser tolerances than the diagnosis', accounts for up to 20 um in a window. Replayed on the
+ticks' own times, the bag's states come back to 0.03 um.
 """
 
 from __future__ import annotations

@@ -2,10 +2,11 @@
 
 A window's initial state comes from the data (:mod:`~exo_has_sim.diagnosis.plants`): the
 position and, when measured, the pressure, smoothed, with the velocity (and, without a pressure
-sensor, the pressure from the force balance, Eq. 8). The motor speed and the spool come from
-the commands sent before the window, through the model's own speed loop and valve. Without a
-load-force signal the load is one constant, fitted with the baseline, or, with the pressure
-unmeasured too, a polynomial in time of each window's own (:meth:`HasPlant.predict`).
+sensor, the pressure from the force balance, Eq. 8), and the measured motor speed. The spool,
+and a motor speed not measured, come from the commands sent before the window, through the
+model's own speed loop and valve. Without a load-force signal the load is one constant, fitted
+with the baseline, or, with the pressure unmeasured too, a polynomial in time of each window's
+own (:meth:`HasPlant.predict`).
 
 The model is integrated by the compiled integrator of :mod:`exo_has_sim.integrator` (that of
 ``simulate_open_loop``, at tighter tolerances, see :data:`HAS_ATOL`), every (candidate,
@@ -93,10 +94,14 @@ class HasPlant(WindowedModel):
     In the paper's circuit a measured rod-side pressure is an input: its force A_B p_B joins
     the load. In a circuit with a rod chamber of its own (``params.circuit``) it is an output,
     the chamber's pressure a state, and the baseline also fits the charge pressure and the
-    return conductance. A window's initial motor speed and spool position are not taken from
-    the (noisy) speed signal but computed from the commands sent before it, through the
-    model's own speed loop and valve (first-order lags), so they carry the candidate's
-    transport delay.
+    return conductance. A window's initial motor speed is the measured one where the record
+    has it, as it is: computed from the commands sent before the window, it was up to 18
+    rad/s off the plant's on a session's bag (the commands on the record's grid are not those
+    of the plant's ticks), and smoothed, up to 8.6 rad/s where it changes fast; a sensor's
+    noise in it the speed loop forgets within the burn-in (its time constants), as it does
+    not the position's. The spool position, and a motor speed not measured, are computed from
+    the commands sent before the window, through the model's own speed loop and valve
+    (first-order lags), with the candidate's transport delay.
 
     With ``speed_input`` the measured motor speed drives the pump instead of the command
     through the motor's loop, so that the hydraulics are judged apart from the motor (a drive
@@ -156,6 +161,15 @@ class HasPlant(WindowedModel):
             if measurement.has('pressure_a') else None
         self._p_b = smooth(measurement.optional['pressure_b'], period) \
             if measurement.has('pressure_b') else None
+        # A window starts from the measured motor speed (the one-way motor's is its size), and
+        # a second-order loop from its smoothed rate; the measured speed as the input is its
+        # own start.
+        self._n: tuple[FloatArray, FloatArray] | None = None
+        if measurement.has('motor_speed') and not speed_input:
+            speed = measurement.optional['motor_speed']
+            if self.params.circuit == 'switched':
+                speed = np.abs(speed)
+            self._n = speed, smooth(speed, period, 1)
         # The paper's model has the rod chamber at the tank's (atmospheric) pressure; where the
         # rod-side pressure is measured, its force A_B p_B acts with the load (an elastic tank
         # kept above atmospheric, the pressure drop of the return line). A circuit with a rod
@@ -496,6 +510,9 @@ class HasPlant(WindowedModel):
             y0[:, model.N] += weight * speed[starts]
             y0[:, model.NDOT] += weight * rate[starts]
             y0[:, model.S] += weight * spool[starts]
+        if self._n is not None:
+            y0[:, model.N] = self._n[0][starts]
+            y0[:, model.NDOT] = self._n[1][starts] if params.motor_damping_ratio > 0.0 else 0.0
         return y0
 
     def simulate(self, candidates: Sequence[Candidate], starts: IntArray, horizon: int,

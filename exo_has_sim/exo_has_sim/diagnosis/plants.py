@@ -17,8 +17,9 @@ scored horizon (a multi-step-ahead prediction, as MATLAB's ``compare`` with a pr
 horizon, or a multiple-shooting simulation; see :mod:`~exo_has_sim.diagnosis.compare`). The
 initial state of a window comes from the data: the position and, when measured, the pressure,
 smoothed by a local cubic (Savitzky-Golay) fit over :data:`SMOOTHING_TIME`, which also gives
-the velocity. A window's inputs include those sent before it, so a transport delay acts on the
-true earlier commands.
+the velocity (and a HAS's measured motor speed, see
+:class:`~exo_has_sim.diagnosis.has_plant.HasPlant`). A window's inputs include those sent
+before it, so a transport delay acts on the true earlier commands.
 """
 
 from __future__ import annotations

@@ -23,6 +23,15 @@ from exo_has_sim.diagnosis.selection import ALPHA, MIN_GAIN
 SHOWN_WINDOWS = 4
 UNITS = {'position': ('mm', 1e3), 'pressure_a': ('MPa', 1e-6), 'pressure_b': ('MPa', 1e-6),
          'motor_speed': ('rad/s', 1.0)}
+#: Unit of each plant's input (:data:`exo_has_sim.diagnosis.data.INPUT_COLUMNS`).
+INPUT_UNITS = {'motor_speed_command': 'rad/s', 'force': 'N'}
+#: Least span of a prediction plot's y axis, as a share of the output's range over the windows
+#: shown: a still window's flat signal is drawn flat, not magnified to its last digits.
+LEAST_SPAN = 0.05
+#: SI prefixes an axis' unit may take, by power of 1000.
+PREFIXES = {-3: 'n', -2: 'µ', -1: 'm', 0: '', 1: 'k', 2: 'M', 3: 'G'}
+#: Units that take a prefix on an axis (the base units the diagnosis plots in).
+PREFIXED_UNITS = ('m', 'm/s', 'Pa', 'Pa/s', 'N', 's')
 
 
 def summary(diagnosis: Diagnosis) -> str:
@@ -343,6 +352,7 @@ def _plot_predictions(d: Diagnosis, path: Path) -> None:
         if d.transfer is not None else None
     for k, output in enumerate(outputs):
         unit, scale = UNITS.get(output, ('', 1.0))
+        shown_range = float(np.ptp(d.nominal.measured[shown, :, k])) * scale
         for column, w in enumerate(shown):
             ax = axes[k, column]
             t = m.time[index[w]]
@@ -359,6 +369,8 @@ def _plot_predictions(d: Diagnosis, path: Path) -> None:
                         label="paper's 3rd-order TF")
             ax.grid(alpha=0.3)
             ax.tick_params(labelsize=6)
+            _plain(ax)
+            _least_span(ax, d.nominal.measured[w, :, k] * scale, LEAST_SPAN * shown_range)
             if column == 0:
                 ax.set_ylabel(f'{output} [{unit}]', fontsize=7)
             if k == len(outputs) - 1:
@@ -380,7 +392,8 @@ def _plot_ranking(d: Diagnosis, path: Path) -> None:
     ax.barh(names, ratios, color=colours)
     ax.axvline(1.0, color='k', lw=0.8)
     ax.axvline(1.0 - MIN_GAIN, color='C3', lw=0.8, ls='--', label='largest ratio named')
-    ax.set_xlabel('validated cost / baseline cost (red: significant)')
+    ax.set_xlabel('validated cost / baseline cost [-] (red: significant)')
+    _plain(ax, 'x')  # the y axis names the effects
     ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=80)
@@ -404,7 +417,9 @@ def _plot_tests(d: Diagnosis, path: Path) -> None:
         ax.axhspan(-band, band, color='0.85', label='99 % band')
         ax.set_title(d.tests[f'baseline_{kind}'].name, fontsize=9)
         ax.set_xlabel('lag [samples]')
+        ax.set_ylabel('normalised correlation [-]')
         ax.grid(alpha=0.3)
+        _plain(ax)
     if axes[0].get_legend_handles_labels()[0]:
         axes[0].legend(fontsize=7)
     fig.tight_layout()
@@ -419,18 +434,72 @@ def _plot_signatures(d: Diagnosis, path: Path) -> None:
     columns = 3
     rows = max(1, math.ceil(count / columns))
     fig, axes = plt.subplots(rows, columns, figsize=(10, 2.6 * rows), squeeze=False)
+    input_name = d.plant.measurement.input_name
     for ax, signature in zip(axes.ravel(), d.signatures, strict=False):
-        ax.errorbar(signature.centres, signature.means, yerr=signature.errors, fmt='o-', ms=3,
-                    lw=0.8, capsize=2)
+        # The input's signature names it without its unit, which the plant's input has.
+        feature = signature.feature.replace(
+            '|input|', f'|{input_name}| [{INPUT_UNITS.get(input_name, "-")}]')
+        x_label, x_scale = _prefixed(feature, signature.centres)
+        y_label, y_scale = _prefixed(signature.residual, np.abs(signature.means)
+                                     + np.nan_to_num(signature.errors))
+        ax.errorbar(signature.centres * x_scale, signature.means * y_scale,
+                    yerr=signature.errors * y_scale, fmt='o-', ms=3, lw=0.8, capsize=2)
         ax.axhline(0.0, color='k', lw=0.6)
         ax.set_title(f'{signature.effect}: t = {signature.statistic:+.1f}', fontsize=8)
-        ax.set_xlabel(signature.feature, fontsize=7)
-        ax.set_ylabel(signature.residual, fontsize=7)
+        ax.set_xlabel(x_label, fontsize=7)
+        ax.set_ylabel(y_label, fontsize=7)
         ax.tick_params(labelsize=6)
         if signature.id == 'small_input':
             ax.set_xscale('log')
+        else:
+            _plain(ax)
     for ax in axes.ravel()[count:]:
         ax.set_visible(False)
     fig.tight_layout()
     fig.savefig(path, dpi=80)
     plt.close(fig)
+
+
+def _plain(ax: Any, which: str = 'xy') -> None:
+    """Give the numeric axes (``which``) tick labels that show the values themselves.
+
+    No offset and no power of ten beside them: matplotlib's default draws a flat signal's
+    ticks as an offset and its last digits ("+3.127", "1e-6+7.27731"); the axes here carry
+    their unit in the label instead.
+    """
+    from matplotlib.ticker import ScalarFormatter
+
+    for axis in (getattr(ax, f'{name}axis') for name in which):
+        formatter = ScalarFormatter(useOffset=False)
+        formatter.set_scientific(False)
+        axis.set_major_formatter(formatter)
+
+
+def _least_span(ax: Any, values: np.ndarray, span: float) -> None:
+    """Widen the y axis about the values to ``span`` at least (a still window drawn flat)."""
+    finite = values[np.isfinite(values)]
+    if finite.size == 0 or not span > 0.0:
+        return
+    low, high = ax.get_ylim()
+    if high - low < span:
+        middle = 0.5 * (float(np.min(finite)) + float(np.max(finite)))
+        ax.set_ylim(middle - 0.5 * span, middle + 0.5 * span)
+
+
+def _prefixed(label: str, values: np.ndarray) -> tuple[str, float]:
+    """Give the axis label its SI unit with the prefix that puts the values in 1 to 1000.
+
+    ``label`` ends in its unit in brackets (``'pressure residual [Pa]'``); returns the label
+    with the prefixed unit (``'[kPa]'``) and the factor the values are multiplied by. A unit
+    outside :data:`PREFIXED_UNITS`, or values all zero, keep the label as it is.
+    """
+    head, bracket, rest = label.rpartition('[')
+    unit = rest[:-1] if bracket and rest.endswith(']') else ''
+    finite = np.abs(values[np.isfinite(values)])
+    if unit not in PREFIXED_UNITS or finite.size == 0 or not np.max(finite) > 0.0:
+        return label, 1.0
+    power = math.floor(math.log10(float(np.max(finite))) / 3.0)
+    power = min(max(power, min(PREFIXES)), max(PREFIXES))
+    if unit == 's':  # seconds are not taken to kiloseconds
+        power = min(power, 0)
+    return f'{head}[{PREFIXES[power]}{unit}]', 1000.0 ** -power

@@ -275,7 +275,7 @@ def signatures(features: Mapping[str, FloatArray], rates: Mapping[str, FloatArra
     out.append(Signature(
         'lagged_input', "residual rate correlated with the input's rate, by lag",
         'transport_delay', 'lag [s]',
-        't of the correlation with the input rate', lags, np.array(lag_values),
+        't of the correlation with the input rate [-]', lags, np.array(lag_values),
         np.ones(len(lags)), float(abs(lag_values[best])),
         f'largest |t| of the correlation, at lag {lags[best] * 1e3:.0f} ms (a delay: '
         "the model runs ahead of the plant by the input's rate times the delay)"))
@@ -297,7 +297,7 @@ def signatures(features: Mapping[str, FloatArray], rates: Mapping[str, FloatArra
             high = p > 0.5 * relief_pressure
             out.append(Signature(
                 'near_relief', 'velocity error against pressure over the relief setting',
-                'relief_valve', 'p / p_relief', 'position residual rate [m/s]', centres,
+                'relief_valve', 'p / p_relief [-]', 'position residual rate [m/s]', centres,
                 means, errors, -_t_difference(flow[high], flow[~high]),
                 'minus the Welch t of the velocity error above half the relief setting '
                 'minus below (a cracked valve loses flow only above its crack pressure)'))
