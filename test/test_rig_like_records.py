@@ -109,7 +109,9 @@ def test_the_flow_gain_is_within_10_percent_of_the_area_ratio_or_says_it_cannot_
         if finding is None:  # too few samples either way: no finding, no claim
             continue
         text = finding['text']
-        assert 'directly, the median of A_A v / (D_p n)' in text, each['seed']
+        # The check a user can make by hand, or why there is none.
+        assert 'directly, the median of A_A v / (D_p n)' in text \
+            or 'no direct look: fewer than 50 steady samples' in text, each['seed']
         if not finding['gating']:
             assert 'cannot tell the flow gain by direction' in text, (each['seed'], text)
         elif 'cannot tell the ratio closer than' not in text:
