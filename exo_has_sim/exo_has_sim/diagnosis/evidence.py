@@ -387,8 +387,8 @@ def direction_gain(plant: HasPlant, span: Span) -> Finding | None:
         return None
     # A pump that turns slowly against a loaded chamber loses much of its flow to leakage,
     # which the direct look does not take out: it counts only a tenth of the top speed and up.
-    direct = direct_ratio(velocity, speed, area, displacement, settled,
-                          DIRECT_SPEED_SHARE * plant.params.motor_speed_max)
+    least_speed = DIRECT_SPEED_SHARE * plant.params.motor_speed_max
+    direct = direct_ratio(velocity, speed, area, displacement, settled, least_speed)
     areas = plant.params.area_a / plant.params.area_b
     circuit = plant.params.circuit
     expected, why = 1.0, "the paper's pump fills and empties the rodless chamber both ways"
@@ -410,7 +410,7 @@ def direction_gain(plant: HasPlant, span: Span) -> Finding | None:
     passed = _within(data.ratio, data.error, expected)
     look = direct.sentence() if direct is not None else (
         f'no direct look: fewer than {MIN_SAMPLES} steady samples either way with the pump '
-        f'above {DIRECT_SPEED_SHARE * plant.params.motor_speed_max:.3g} rad/s')
+        f'above {least_speed:.3g} rad/s')
     text = (f'flow gain by direction: per unit of pump flow the cylinder retracts '
             f'{data.ratio:.2f} times as fast as it extends (regression, +-{Z95 * data.error:.1%}'
             f", {data.samples} samples; {look}), where the model's circuit gives "
@@ -475,9 +475,11 @@ def resisting_force(plant: HasPlant) -> tuple[float, float] | None:
     little motion.
     """
     found = _net_force(plant)
-    if found is None:
-        return None
-    target, v = found
+    return None if found is None else _resisting_fit(*found)
+
+
+def _resisting_fit(target: FloatArray, v: FloatArray) -> tuple[float, float]:
+    """Fit ``F_0 + F_r sign(v) + B v`` to the net force [N]; return F_r and its error [N]."""
     design = np.column_stack((np.ones(len(v)), np.sign(v), v))
     coef, *_ = np.linalg.lstsq(design, target, rcond=None)
     residual = target - design @ coef
@@ -582,11 +584,11 @@ def resisting_load(plant: HasPlant) -> Finding | None:
     a right structure the effect ``braking_load`` names it. None where it cannot be estimated
     or the parameter set already has a brake.
     """
-    found = resisting_force(plant)
+    found = _net_force(plant)
     if found is None or plant.params.brake_force > 0.0:
         return None
-    level, error = found
-    force, v = _net_force(plant) or (np.zeros(0), np.zeros(0))
+    force, v = found
+    level, error = _resisting_fit(force, v)
     # The check a user can make: half the gap between the medians of the net pressure force
     # extending and retracting, with no damping or offset taken out.
     direct = 0.5 * float(np.median(force[v > 0.0]) - np.median(force[v < 0.0]))
