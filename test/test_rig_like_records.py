@@ -32,31 +32,20 @@ from exo_has_sim.diagnosis.loading import load_plant
 
 pytestmark = pytest.mark.slow  # diagnoses of records of a plant simulated apart
 
-POSITION_ONLY = ('time', 'motor_speed_command', 'position', 'reference')
 DATASHEET = rig.datasheet()
 AREA_A = math.pi / 4.0 * DATASHEET['bore_diameter'] ** 2
 AREAS = AREA_A / (AREA_A - math.pi / 4.0 * DATASHEET['rod_diameter'] ** 2)
-#: The thrust [N] the rig's motor holds at its peak torque, standing.
-THRUST = AREA_A * DATASHEET['motor_torque_peak'] * DATASHEET['pump_mechanical_efficiency'] \
-    / DATASHEET['pump_displacement']
-#: seed, brake as a share of the thrust, excursion, charge pressure [Pa], columns, diagnosed
-#: in full (else the flow gain by direction only).
-RECORDS = ((9140, 0.30, 0.10, 5.0e5, third_rig.LOGGED, True),
-           (9141, 0.45, 0.25, 5.5e5, third_rig.LOGGED, True),
-           (9142, 0.55, 0.15, 6.0e5, POSITION_ONLY, True),
-           (9143, 0.40, 0.05, 5.2e5, third_rig.LOGGED, False),
-           (9144, 0.50, 0.35, 5.8e5, POSITION_ONLY, False),
-           (9145, 0.35, 0.20, 5.4e5, third_rig.LOGGED, False))
+#: Diagnosed in full (else the flow gain by direction only): two records with the rig's
+#: pressures, one from the position alone.
+FULL = (9140, 9141, 9142)
 TOLERANCE = 0.1
 
 
 def record(task):
     """Simulate one record, diagnose it (or judge its flow gain); return what was found."""
-    (seed, share, excursion, charge, columns, full), folder = task
-    draw = rig.draw(seed, effect='none', duration=20.0, brake_force=share * THRUST,
-                    excursion=excursion, charge_pressure=charge)
-    path = os.path.join(folder, f'{seed}.csv')
-    rig.write_csv(draw, path, columns=columns)
+    (seed, share, excursion, charge, logged), folder = task
+    path, draw = third_rig.write_rig_like(folder, seed, share, excursion, charge, logged)
+    full = seed in FULL
     out = {'seed': seed, 'travel': float(draw.columns['position'].max()
                                          - draw.columns['position'].min())}
     for circuit in ('paper', 'switched'):
@@ -64,7 +53,7 @@ def record(task):
                                           circuit)
         if circuit == 'paper' and full:
             doc_path = os.path.join(folder, f'{seed}.json')
-            out['code'] = main([path, '--params', str(params), '--json', doc_path, '-q'])
+            out['code'] = main([str(path), '--params', str(params), '--json', doc_path, '-q'])
             with open(doc_path, encoding='utf-8') as handle:
                 out['doc'] = json.load(handle)
         plant = load_plant(path, 'has', 'hip', None, params, False, False)
@@ -78,7 +67,7 @@ def record(task):
 def queue_diagnoses(pool, folder):
     """Queue the records in the run's pool (conftest.py)."""
     return Queued(folder, records=pool.map_async(
-        record, [(each, str(folder)) for each in RECORDS], chunksize=1))
+        record, [(each, str(folder)) for each in third_rig.RIG_LIKE], chunksize=1))
 
 
 @pytest.fixture(scope='module')

@@ -104,3 +104,29 @@ def write_rig_file(path: str | Path, circuit: str = 'switched') -> Path:
     path = Path(path)
     path.write_text('\n'.join(out) + '\n', encoding='utf-8')
     return path
+
+
+#: The thrust [N] the rig's motor holds at its peak torque, standing.
+THRUST = math.pi / 4.0 * rig.datasheet()['bore_diameter'] ** 2 \
+    * rig.datasheet()['motor_torque_peak'] * rig.datasheet()['pump_mechanical_efficiency'] \
+    / rig.datasheet()['pump_displacement']
+#: Records like those of the real rig that stopped the diagnosis: seed, brake as a share of
+#: :data:`THRUST`, excursion (the share of its usual stroke the rod moves over), the
+#: accumulator's charge pressure [Pa], and whether the rig's pressures are logged (else the
+#: position only).
+RIG_LIKE = ((9140, 0.30, 0.10, 5.0e5, True), (9141, 0.45, 0.25, 5.5e5, True),
+            (9142, 0.55, 0.15, 6.0e5, False), (9143, 0.40, 0.05, 5.2e5, True),
+            (9144, 0.50, 0.35, 5.8e5, False), (9145, 0.35, 0.20, 5.4e5, True))
+#: The columns of a record without the pressures and the motor speed.
+POSITION_ONLY = ('time', 'motor_speed_command', 'position', 'reference')
+
+
+def write_rig_like(folder: str | Path, seed: int, share: float, excursion: float,
+                   charge: float, logged: bool, duration: float = 20.0) -> tuple[Path, object]:
+    """Simulate a record of :data:`RIG_LIKE` and write it as a CSV; return its path and draw."""
+    draw = rig.draw(seed, effect='none', duration=duration, brake_force=share * THRUST,
+                    excursion=excursion, charge_pressure=charge)
+    path = Path(folder) / f'{seed}.csv'
+    rig.write_csv(draw, path, columns=LOGGED if logged else POSITION_ONLY)
+    return path, draw
+
