@@ -23,11 +23,11 @@ import pytest
 import third_rig
 
 from exo_has_sim.diagnosis.compare import make_windows
-from exo_has_sim.diagnosis.evidence import (
+from exo_has_sim.diagnosis.evidence import direction_gain
+from exo_has_sim.diagnosis.flow_gains import (
     DirectRatio,
     FlowGains,
     direct_ratio,
-    direction_gain,
     regression_doubt,
 )
 from exo_has_sim.diagnosis.loading import load_plant

@@ -35,9 +35,9 @@ pytestmark = pytest.mark.slow  # diagnoses of records of a plant simulated apart
 DATASHEET = rig.datasheet()
 AREA_A = math.pi / 4.0 * DATASHEET['bore_diameter'] ** 2
 AREAS = AREA_A / (AREA_A - math.pi / 4.0 * DATASHEET['rod_diameter'] ** 2)
-#: Diagnosed in full (else the flow gain by direction only): two records with the rig's
-#: pressures, one from the position alone.
-FULL = (9140, 9141, 9142)
+#: Diagnosed in full (else the flow gain by direction only): one record with the rig's
+#: pressures, one from the position alone (a third, 9141, took the suite 40 s more).
+FULL = (9140, 9142)
 TOLERANCE = 0.1
 
 
@@ -82,7 +82,7 @@ def test_the_records_move_over_a_small_part_of_the_stroke(found):
 
 def test_every_record_gets_a_verdict_and_the_papers_structure_names_no_effect(found):
     full = [each for each in found if 'code' in each]
-    assert len(full) == 3
+    assert len(full) == len(FULL)
     for each in full:
         assert each['code'] in (0, STRUCTURE_STATUS), each['seed']
         assert each['doc']['causes'] == [], each['seed']

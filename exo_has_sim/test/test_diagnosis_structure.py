@@ -17,7 +17,7 @@ from exo_has_sim.diagnosis.cli import STRUCTURE_STATUS, main
 from exo_has_sim.diagnosis.compare import horizon_samples, make_windows
 from exo_has_sim.diagnosis.data import check_columns, read_csv
 from exo_has_sim.diagnosis.diagnose import diagnose
-from exo_has_sim.diagnosis.evidence import flow_gains, motor_shortfall, resisting_force
+from exo_has_sim.diagnosis.evidence import motor_shortfall, resisting_force
 from exo_has_sim.diagnosis.findings import Alternative, Finding, Judgement
 from exo_has_sim.diagnosis.fitting import (
     Evaluation,
@@ -26,6 +26,7 @@ from exo_has_sim.diagnosis.fitting import (
     fit_parameters,
     output_weights,
 )
+from exo_has_sim.diagnosis.flow_gains import flow_gains
 from exo_has_sim.diagnosis.has_plant import HasPlant
 from exo_has_sim.diagnosis.loading import load_plant
 from exo_has_sim.diagnosis.plants import Parameter

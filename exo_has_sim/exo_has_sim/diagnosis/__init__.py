@@ -24,16 +24,18 @@ the methods:
 - :mod:`~exo_has_sim.diagnosis.selection`: scoring, ranking, forward selection of the cause;
 - :mod:`~exo_has_sim.diagnosis.limits`: the detection limit of each effect left out;
 - :mod:`~exo_has_sim.diagnosis.findings`, :mod:`~exo_has_sim.diagnosis.evidence`,
-  :mod:`~exo_has_sim.diagnosis.structure`: whether the model's structure describes the record:
-  the findings and the verdict, the record's evidence of the circuit and the motor, the fitted
-  model's findings and the other structures fitted;
+  :mod:`~exo_has_sim.diagnosis.flow_gains`, :mod:`~exo_has_sim.diagnosis.structure`: whether
+  the model's structure describes the record: the findings and the verdict, the record's
+  evidence of the circuit and the motor (the flow gain by direction read two ways), the
+  fitted model's findings and the other structures fitted;
 - :mod:`~exo_has_sim.diagnosis.transfer`: the paper's third-order transfer function;
 - :mod:`~exo_has_sim.diagnosis.residuals`: residual tests and the causes' signatures;
 
 and the whole:
 
 - :mod:`~exo_has_sim.diagnosis.loading`: a record to the plant that diagnoses it;
-- :mod:`~exo_has_sim.diagnosis.diagnose`: the whole diagnosis;
+- :mod:`~exo_has_sim.diagnosis.diagnose`: the whole diagnosis, within the time budget of
+  :mod:`~exo_has_sim.diagnosis.budget`;
 - :mod:`~exo_has_sim.diagnosis.result`: what it found, and the JSON document;
 - :mod:`~exo_has_sim.diagnosis.report`: the Markdown report, its plots and the summary;
 - :mod:`~exo_has_sim.diagnosis.cli`: ``exo-has diagnose``.

@@ -216,7 +216,7 @@ def settle_ambiguous(plant: WindowedModel, judgement: Judgement, baseline: Fit,
 
     A loss at the loaded chamber's pressure slows one direction as a circuit that feeds the
     other chamber does: without a rodless pressure the regression of
-    :func:`~exo_has_sim.diagnosis.evidence.flow_gains` cannot take it out, and with one it
+    :func:`~exo_has_sim.diagnosis.flow_gains.flow_gains` cannot take it out, and with one it
     takes out most, not all, of a relief valve cracked far below its setting. Where that
     finding is the only one the structure fails, the plant's other structures are fitted
     (:func:`try_structures`): the verdict stands if one describes the record with at most
