@@ -41,8 +41,9 @@ from exo_has_runtime.processes import Processes
 ROOT = Path(__file__).resolve().parent.parent
 #: Ordinary records of the third plant: seed, logged (else the position only).
 ORDINARY = ((9100, True), (9103, False))
-#: Packages whose sources a checkout lends the diagnosis.
-PACKAGES = ('exo_has_common', 'exo_has_runtime', 'exo_has_sim')
+#: Packages whose sources a checkout lends the diagnosis (ROS-free; the process owner's tether
+#: stays this checkout's).
+PACKAGES = ('exo_has_common', 'exo_has_sim')
 DIAGNOSE = 'import sys; from exo_has_sim.diagnosis.cli import main; sys.exit(main(sys.argv[1:]))'
 
 
