@@ -166,7 +166,9 @@ def test_a_regression_under_1_or_against_the_direct_look_beyond_their_uncertaint
         return DirectRatio(ratio, error, 1000, 30.0, 2e-3)
 
     assert 'under 1' in regression_doubt(regression(0.7), None)
-    assert regression_doubt(regression(0.95), None) is None  # 1 lies within its interval
+    assert 'under 1' in regression_doubt(regression(0.41, 0.37), None)  # however uncertain
+    # Within what a right structure leaves of 1, however precise: our own plant's 0.99.
+    assert regression_doubt(regression(0.99, 0.004), None) is None
     assert regression_doubt(regression(1.45), look(1.50)) is None
     assert 'part by more' in regression_doubt(regression(1.02, 0.02), look(1.45, 0.01))
     # A loss biases the direct look: a quarter apart, within their uncertainty, is no doubt.
