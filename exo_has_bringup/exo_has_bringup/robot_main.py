@@ -29,7 +29,9 @@ its only threads are those two (OpenBLAS is kept to the calling thread), and no 
 executor and no other thread holds the interpreter lock the loop needs. With
 ``--realtime-priority N`` both run under SCHED_FIFO (the I/O thread inherits it; it needs root,
 CAP_SYS_NICE or an ``rtprio`` limit: ``ulimit -r``); without the permission the process says so
-on stderr and runs under the default scheduler. Its memory is locked in RAM at start
+on stderr and runs under the default scheduler. Root refused too is in a control group without a
+real-time budget, and the warning names the group and the fix
+(:func:`exo_has_common.realtime.set_realtime_priority`). Its memory is locked in RAM at start
 (``--lock-memory``, on by default: ``mlockall``, the C heap never trimmed;
 :func:`exo_has_common.realtime.lock_memory`), so that no page faults inside a cycle: about 300
 MB resident where it would use 110 (every page of the libraries it maps, numpy's and scipy's

@@ -8,6 +8,10 @@ as ros2_control runs its control loop on a robot PC. Only the calling thread is 
 DDS threads a node created before stay ordinary, so a busy one cannot hold the loop off at its
 own priority. Needs root or ``CAP_SYS_NICE`` (or an ``rtprio`` limit in
 ``/etc/security/limits.conf``); without, the loop runs as before and the caller is told why.
+Root can be refused too: with ``CONFIG_RT_GROUP_SCHED`` a control group other than the root one
+has no real-time budget unless given one (its ``cpu.rt_runtime_us`` is 0), and the kernel
+answers EPERM to everyone in it. A root shell of a 16-core Linux 6.18 machine was, until it
+was moved to the root group; the message then names the group and the fix, not root.
 
 A CPU of its own (:func:`set_cpus`, as ``taskset`` or an isolated core gives one): SCHED_FIFO
 does not keep the kernel's network work off the loop's CPU. A process sending over the loopback
@@ -31,6 +35,7 @@ import ctypes
 import ctypes.util
 import errno
 import os
+from pathlib import Path
 
 #: Highest priority accepted: above it run the kernel's own threads (threaded interrupts at 50).
 MAX_PRIORITY = 49
@@ -69,12 +74,91 @@ def set_realtime_priority(priority: int, thread_id: int = 0) -> str | None:
     try:
         os.sched_setscheduler(thread_id, os.SCHED_FIFO, os.sched_param(priority))
     except PermissionError:
+        if os.geteuid() == 0 and _has_capability(CAP_SYS_NICE):
+            return (f'SCHED_FIFO priority {priority} refused although running as root: '
+                    f'{_real_time_budget()}: running under the default scheduler')
+        if os.geteuid() == 0:
+            return (f'no permission for SCHED_FIFO priority {priority}: root without '
+                    'CAP_SYS_NICE (a container drops it; docker run --cap-add SYS_NICE): '
+                    'running under the default scheduler')
         return (f'no permission for SCHED_FIFO priority {priority} (needs root, CAP_SYS_NICE or '
                 'an rtprio limit): running under the default scheduler')
     except OSError as exc:
         return f'cannot set SCHED_FIFO priority {priority} ({exc}): running under the default ' \
                'scheduler'
     return None
+
+
+#: Where the kernel lists the process's control groups, and where their hierarchies are
+#: mounted (tests point both elsewhere).
+CGROUP_FILE = Path('/proc/self/cgroup')
+CGROUP_MOUNT = Path('/sys/fs/cgroup')
+#: Where the kernel lists the process's capabilities (``CapEff``).
+STATUS_FILE = Path('/proc/self/status')
+#: The capability that lets a process set real-time classes (capability(7)).
+CAP_SYS_NICE = 23
+
+
+def _has_capability(capability: int) -> bool:
+    """Whether the process holds ``capability`` (True where it cannot be read: root's case)."""
+    try:
+        for line in STATUS_FILE.read_text().splitlines():
+            if line.startswith('CapEff:'):
+                return bool(int(line.split()[1], 16) >> capability & 1)
+    except (OSError, ValueError, IndexError):
+        pass
+    return True
+
+
+def _cpu_cgroup() -> tuple[str, Path] | None:
+    """Return the process's group in the hierarchy with the cpu controller, and its root.
+
+    A cgroup v1 ``cpu`` line (``4:cpu,cpuacct:/user.slice``) if there is one, where the
+    real-time budget lives, else the unified v2 line (``0::/user.slice/...``).
+    """
+    try:
+        lines = CGROUP_FILE.read_text().splitlines()
+    except OSError:
+        return None
+    unified = None
+    for line in lines:
+        _, controllers, group = [*line.split(':', 2), '', ''][:3]
+        if 'cpu' in controllers.split(','):
+            root = next((CGROUP_MOUNT / name for name in (controllers, 'cpu', 'cpu,cpuacct')
+                         if (CGROUP_MOUNT / name).is_dir()), CGROUP_MOUNT / 'cpu')
+            return group or '/', root
+        if not controllers and unified is None:
+            unified = group or '/'
+    return (unified, CGROUP_MOUNT) if unified is not None else None
+
+
+def _real_time_budget() -> str:
+    """Say why a root process with CAP_SYS_NICE is refused SCHED_FIFO, and the fix."""
+    found = _cpu_cgroup()
+    if found is None:
+        return ('the likely cause is a control group with no real-time budget '
+                '(cpu.rt_runtime_us 0, CONFIG_RT_GROUP_SCHED); start it in the root control '
+                'group or give its group a budget')
+    group, root = found
+    if group == '/':
+        return ('the process is in the root control group; see whether its real-time budget '
+                'is 0 (/proc/sys/kernel/sched_rt_runtime_us, cpu.rt_runtime_us)')
+    folder = root / group.lstrip('/')
+    try:
+        budget = (folder / 'cpu.rt_runtime_us').read_text().strip()
+    except OSError:
+        budget = ''
+    if budget in ('', '0'):
+        why = ('which has no real-time budget (its cpu.rt_runtime_us is '
+               f'{budget or "unreadable"}; with CONFIG_RT_GROUP_SCHED a child group gets none '
+               'unless given one)')
+    else:
+        why = f'whose real-time budget may be short (its cpu.rt_runtime_us is {budget})'
+    return (f'the process is in control group {group}, {why}. Start it from the root group '
+            f'(echo $$ > {root / "cgroup.procs"} in its shell, as root), give the group a '
+            f'budget (echo 950000 > {folder / "cpu.rt_runtime_us"}, its parents first), or '
+            'start it outside the systemd slice that put it there (a unit with '
+            'CPUAccounting=no)')
 
 
 #: mlockall(2) flags: the pages mapped now, and those mapped from now on.

@@ -8,9 +8,11 @@ import os
 import subprocess
 import sys
 import threading
+from pathlib import Path
 
 import pytest
 
+from exo_has_common import realtime
 from exo_has_common.realtime import (
     M_MMAP_MAX,
     M_TRIM_THRESHOLD,
@@ -47,12 +49,90 @@ def test_priority_zero_leaves_the_thread_under_the_default_scheduler() -> None:
 def test_a_priority_puts_only_the_calling_thread_under_sched_fifo_where_permitted() -> None:
     message, policy, priority = _policy_of_a_thread_set_to(10)
     if message is not None:
-        # Without the privilege the thread runs on, and the message says why.
-        assert 'no permission' in message
+        # Without the privilege (or, as root, without a real-time budget in its control
+        # group) the thread runs on, and the message says why.
+        assert 'no permission' in message or 'although running as root' in message
         assert policy == os.SCHED_OTHER
         return
     assert (policy, priority) == (os.SCHED_FIFO, 10)
     assert os.sched_getscheduler(0) == os.SCHED_OTHER  # the test's own thread is untouched
+
+
+
+def _refused(monkeypatch: pytest.MonkeyPatch, tmp_path: Path, euid: int, cgroup: str,
+             capabilities: str = '000001ffffffffff', budget: str | None = '0') -> str:
+    """Return the message of a refused SCHED_FIFO for a process as described."""
+
+    def refuse(*_args: object) -> None:
+        raise PermissionError(1, 'Operation not permitted')
+
+    monkeypatch.setattr(os, 'sched_setscheduler', refuse)
+    monkeypatch.setattr(os, 'geteuid', lambda: euid)
+    (tmp_path / 'cgroup').write_text(cgroup)
+    (tmp_path / 'status').write_text(f'Name:\tpython\nCapEff:\t{capabilities}\n')
+    mount = tmp_path / 'fs'
+    group = mount / 'user.slice' / 'user-0.slice'
+    group.mkdir(parents=True)
+    if budget is not None:
+        (group / 'cpu.rt_runtime_us').write_text(f'{budget}\n')
+    monkeypatch.setattr(realtime, 'CGROUP_FILE', tmp_path / 'cgroup')
+    monkeypatch.setattr(realtime, 'CGROUP_MOUNT', mount)
+    monkeypatch.setattr(realtime, 'STATUS_FILE', tmp_path / 'status')
+    message = set_realtime_priority(40)
+    assert message is not None
+    assert message.endswith('running under the default scheduler')
+    return message
+
+
+def test_a_refusal_without_root_asks_for_root_or_a_limit(monkeypatch, tmp_path) -> None:
+    message = _refused(monkeypatch, tmp_path, euid=1000, cgroup='0::/user.slice/user-0.slice\n')
+    assert 'needs root, CAP_SYS_NICE or an rtprio limit' in message
+    assert 'control group' not in message
+
+
+def test_a_refusal_as_root_names_the_control_group_without_a_budget_and_the_fix(
+        monkeypatch, tmp_path) -> None:
+    message = _refused(monkeypatch, tmp_path, euid=0, cgroup='0::/user.slice/user-0.slice\n')
+    assert 'needs root' not in message
+    assert 'although running as root' in message
+    assert 'control group /user.slice/user-0.slice' in message
+    assert 'cpu.rt_runtime_us is 0' in message
+    assert f'echo $$ > {tmp_path / "fs" / "cgroup.procs"}' in message
+    assert 'CPUAccounting' in message
+
+
+def test_a_refusal_as_root_reads_the_cpu_hierarchy_of_cgroup_v1(monkeypatch, tmp_path) -> None:
+    (tmp_path / 'fs' / 'cpu,cpuacct' / 'user.slice' / 'user-0.slice').mkdir(parents=True)
+    (tmp_path / 'fs' / 'cpu,cpuacct' / 'user.slice' / 'user-0.slice' / 'cpu.rt_runtime_us') \
+        .write_text('0\n')
+    message = _refused(monkeypatch, tmp_path, euid=0, budget=None,
+                       cgroup='4:memory:/other\n3:cpu,cpuacct:/user.slice/user-0.slice\n'
+                              '0::/user.slice/user-0.slice/session-3.scope\n')
+    assert 'control group /user.slice/user-0.slice,' in message
+    assert 'cpu.rt_runtime_us is 0' in message
+    assert f'echo $$ > {tmp_path / "fs" / "cpu,cpuacct" / "cgroup.procs"}' in message
+
+
+def test_a_refusal_as_root_with_an_unreadable_budget_still_names_the_group(
+        monkeypatch, tmp_path) -> None:
+    message = _refused(monkeypatch, tmp_path, euid=0, budget=None,
+                       cgroup='0::/system.slice/exo.service\n')
+    assert 'control group /system.slice/exo.service' in message
+    assert 'CONFIG_RT_GROUP_SCHED' in message
+
+
+def test_a_refusal_as_root_in_the_root_group_points_at_the_system_budget(
+        monkeypatch, tmp_path) -> None:
+    message = _refused(monkeypatch, tmp_path, euid=0, cgroup='0::/\n')
+    assert 'root control group' in message
+    assert 'sched_rt_runtime_us' in message
+
+
+def test_a_refusal_as_root_without_cap_sys_nice_says_so(monkeypatch, tmp_path) -> None:
+    message = _refused(monkeypatch, tmp_path, euid=0, capabilities='00000000a80425fb',
+                       cgroup='0::/docker/abc\n')
+    assert 'root without CAP_SYS_NICE' in message
+    assert 'control group' not in message
 
 
 @pytest.mark.parametrize('priority', [-1, MAX_PRIORITY + 1, 2.5, True])
