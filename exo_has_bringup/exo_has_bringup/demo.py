@@ -146,8 +146,8 @@ def run(config: SessionConfig, folder: Path, faults: LinkFaults | None = None) -
     return Outcome(report, final_stop(data.events), failed)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Parse the arguments and run the demo."""
+def build_parser() -> argparse.ArgumentParser:
+    """Return the command line's parser (tests parse the documentation's commands with it)."""
     parser = argparse.ArgumentParser(prog='exo-has demo', description=__doc__.splitlines()[0])
     parser.add_argument('--motions', nargs='+', default=['walk', 'squat'],
                         choices=['walk', 'squat', 'stand'], help='trials in order (walk squat)')
@@ -175,6 +175,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument('--reset-after', type=float, default=1.0, metavar='S',
                         help='the operator resets S s after the link is back (1; negative: '
                              'never)')
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Parse the arguments and run the demo."""
+    parser = build_parser()
     args = parser.parse_args(argv)
     if len(args.motions) != len(args.durations):
         parser.error('give one duration per motion')

@@ -39,14 +39,14 @@ from exo_has_common.errors import BagError
 __all__ = [
     'MCAP_MAGIC', 'BagMessage', 'BagSummary', 'BagTopic', 'BagWriter', 'McapRecordReader',
     'QosProfileLike', 'RecoveryReport', 'Rosbag2Writer', 'TopicSummary', 'bag_summary',
-    'bag_topics', 'default_typestore', 'ensure_message_type', 'format_summary', 'main',
-    'message_definition', 'msg_file', 'normalize_type_name', 'offered_qos', 'read_messages',
-    'recover_bag',
+    'bag_topics', 'build_parser', 'default_typestore', 'ensure_message_type', 'format_summary',
+    'main', 'message_definition', 'msg_file', 'normalize_type_name', 'offered_qos',
+    'read_messages', 'recover_bag',
 ]
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run ``exo-has bag info BAG`` or ``exo-has bag recover BAG [--output DIR]``."""
+def build_parser() -> argparse.ArgumentParser:
+    """Return the command line's parser (tests parse the documentation's commands with it)."""
     parser = argparse.ArgumentParser(prog='exo-has bag', description='Inspect and recover bags.')
     actions = parser.add_subparsers(dest='action', required=True, metavar='ACTION')
     info = actions.add_parser('info', help='topics, types, counts, duration and rates of a bag')
@@ -56,6 +56,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     recover.add_argument('bag', help='bag directory (or .mcap file)')
     recover.add_argument('--output', '-o', default=None,
                          help='new bag directory (default: in place, originals kept as *.orig)')
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``exo-has bag info BAG`` or ``exo-has bag recover BAG [--output DIR]``."""
+    parser = build_parser()
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     try:
         if args.action == 'info':

@@ -161,8 +161,8 @@ class Replayer(Node):
         super().destroy_node()
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run ``exo-has replay BAG [--rate F] [--loop] [--topics T ...] [--delay S]``."""
+def build_parser() -> argparse.ArgumentParser:
+    """Return the command line's parser (tests parse the documentation's commands with it)."""
     parser = argparse.ArgumentParser(prog='exo-has replay', description=__doc__.splitlines()[0])
     parser.add_argument('bag', help='bag directory')
     parser.add_argument('--rate', type=float, default=1.0,
@@ -174,6 +174,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help='seconds to wait before the first message (0)')
     parser.add_argument('--wait-for-subscribers', action='store_true',
                         help='start once every replayed topic has a subscriber')
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``exo-has replay BAG [--rate F] [--loop] [--topics T ...] [--delay S]``."""
+    parser = build_parser()
     args, ros_args = parser.parse_known_args(sys.argv[1:] if argv is None else argv)
     try:
         rate = check_rate(args.rate)

@@ -307,8 +307,8 @@ def format_table(rows: Sequence[Row]) -> str:
     return '\n'.join(lines)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Parse the arguments, print the table, and optionally write it as JSON."""
+def build_parser() -> argparse.ArgumentParser:
+    """Return the command line's parser (tests parse the documentation's commands with it)."""
     parser = argparse.ArgumentParser(prog='exo-has design-check',
                                      description=__doc__.splitlines()[0])
     parser.add_argument('--joint', choices=('hip', 'knee'), default='hip',
@@ -320,6 +320,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                         'files give what the search does not choose: pump, motor, pressures)')
     parser.add_argument('--plot', type=Path, metavar='FILE',
                         help='with --search: write the feasible regions to this PNG')
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Parse the arguments, print the table, and optionally write it as JSON."""
+    parser = build_parser()
     args = parser.parse_args(argv)
     try:
         params = load_parameters(args.params if args.params else args.joint)
