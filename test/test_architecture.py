@@ -1,4 +1,4 @@
-"""The package graph of the README's architecture section holds in the code.
+"""The package graph of the architecture section (docs/developing.md) holds in the code.
 
 Imports go one way, down the layers: exo_has_common (free of rclpy) <- exo_has_runtime (the
 rclpy seams) <- exo_has_sim <- exo_has_control and exo_has_driver <- exo_has_bringup. The
