@@ -301,11 +301,15 @@ class _Worker:
             msg = f'a worker process could not start: {exc}'
             raise DiagnosisError(msg) from exc
 
-    def close(self, end: bool = False) -> None:
-        """Shut the executor down; with ``end``, end its process first (SIGTERM)."""
-        if end and not self.broken:
+    def end(self) -> None:
+        """End the process (SIGTERM), whatever it is doing."""
+        if not self.broken:
             with contextlib.suppress(ProcessLookupError):
                 os.kill(self.pid, signal.SIGTERM)
+            self.broken = True
+
+    def close(self) -> None:
+        """Shut the executor down: when its process has ended its record, or has ended."""
         self.executor.shutdown(wait=True, cancel_futures=True)
 
 
@@ -343,8 +347,10 @@ def _on_workers(todo: Sequence[tuple[Record, str]], count: int, ended: Ended) ->
                 ended(record, id, result)
                 feed(slot)
     except BaseException:  # Ctrl-C, or a worker that could not start: end the others
+        for worker in workers:  # all first: a second Ctrl-C may cut the closing short
+            worker.end()
         for worker in workers:
-            worker.close(end=True)
+            worker.close()
         raise
     for worker in workers:
         worker.close()

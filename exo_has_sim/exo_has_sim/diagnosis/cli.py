@@ -18,6 +18,7 @@ from pathlib import Path
 from exo_has_common.errors import ExoHasError
 from exo_has_sim.diagnosis.batch import (
     ERROR_STATUS,
+    INTERRUPTED_STATUS,
     STRUCTURE_STATUS,
     ProgressBar,
     run_batch,
@@ -143,17 +144,20 @@ def _batch(parser: argparse.ArgumentParser, args: argparse.Namespace, options: O
                      'JSON into --summary DIR')
     if args.workers is not None and args.workers < 0:
         parser.error(f'--workers must be 0 or more, got {args.workers}')
-    records = find_records(args.inputs, args.joint, options, leave_out=[args.summary])
-    if not records:
-        print('exo-has diagnose: no CSV log nor bag in ' + ', '.join(map(str, args.inputs)),
-              file=sys.stderr)
-        return ERROR_STATUS
     try:
+        records = find_records(args.inputs, args.joint, options, leave_out=[args.summary])
+        if not records:
+            print('exo-has diagnose: no CSV log nor bag in ' + ', '.join(map(str, args.inputs)),
+                  file=sys.stderr)
+            return ERROR_STATUS
         outcome = run_batch(records, args.summary, args.workers, args.scheduler,
                             None if args.quiet else ProgressBar())
     except (ExoHasError, OSError) as exc:
         print(f'exo-has diagnose: {exc}', file=sys.stderr)
         return ERROR_STATUS
+    except KeyboardInterrupt:  # before any record started (finding them, hashing them)
+        print('exo-has diagnose: interrupted before any record was diagnosed', file=sys.stderr)
+        return INTERRUPTED_STATUS
     print(counts(outcome.rows) + ('; interrupted' if outcome.interrupted else ''))
     print(f'wrote {outcome.summary[0]} and {outcome.summary[1]}')
     return outcome.status
