@@ -107,9 +107,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Parse the arguments, diagnose, print the summary, write the requested files."""
     parser = _parser()
     args = parser.parse_args(argv)
-    options = Options(args.plant, args.load_mass, args.params, args.horizon, args.burn_in,
-                      args.constant_load, args.motor_speed_input, args.max_causes,
-                      args.time_budget)
+    options = Options(plant=args.plant, load_mass=args.load_mass, params=args.params,
+                      horizon=args.horizon, burn_in=args.burn_in,
+                      constant_load=args.constant_load, motor_speed_input=args.motor_speed_input,
+                      max_causes=args.max_causes, time_budget=args.time_budget)
     if len(args.inputs) > 1 or args.joint == ALL_JOINTS or args.summary is not None \
             or args.workers is not None or args.scheduler is not None \
             or (args.inputs[0].is_dir() and not is_bag(args.inputs[0])):
