@@ -37,8 +37,10 @@ ensemble gives it (``--hidden``'s, ``--third``'s), else none.
 
 Usage (``./run shell``): ``python bench/detection.py --null 40``, ``python bench/detection.py
 --limits --draws 10``, ``python bench/detection.py --twins 6`` and ``python
-bench/detection.py --hidden --sensors position``; ``--jobs`` diagnoses in
-parallel (default: one per CPU).
+bench/detection.py --hidden --sensors position``. The draws are diagnosed as a batch of
+``exo-has diagnose`` (:mod:`exo_has_sim.diagnosis.batch`): ``--workers N`` (or ``--jobs``)
+worker processes (default: one per CPU), or ``--scheduler ADDRESS``, a Dask cluster whose
+workers see this machine's temporary folder at the same path.
 """
 
 from __future__ import annotations
@@ -52,6 +54,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -66,9 +69,12 @@ from common import describe_machine, write_results
 from rigs import rig_file
 
 from exo_has_runtime.tether import tie_to_parent
+from exo_has_sim.diagnosis.batch import ProgressBar, run_batch
 from exo_has_sim.diagnosis.cli import STRUCTURE_STATUS
 from exo_has_sim.diagnosis.cli import main as diagnose_main
+from exo_has_sim.diagnosis.records import Options, Record
 from exo_has_sim.diagnosis.structure import normalised_error
+from exo_has_sim.diagnosis.summary import SummaryFolder
 from exo_has_sim.parameters import load_parameters
 
 DURATION = 30.0  # s
@@ -123,12 +129,21 @@ def _draw(plant: str, seed: int, effect: str, size: float | None, duration: floa
 Task = tuple[str, int, str, float | None, str, str, float]
 
 
-def diagnose_draw(task: Task, quiet: bool = True) -> dict[str, Any]:
-    """Draw one data set, write it as CSV, diagnose it; the verdict and the truth.
+def write_draw(task: Task) -> dict[str, Any]:
+    """Draw one data set and write it as a CSV log; what diagnoses it, and the draw's facts.
 
     The third plant (``'c'``, and ``'c:paper'`` for its rig described with the paper's
     circuit) is diagnosed with its rig's parameters file (test/third_rig.py), its brake held
-    where the motor keeps up (:data:`third_rig.HELD_BRAKES`), from the columns the rig logs.
+    where the motor keeps up (:data:`third_rig.HELD_BRAKES`), from the columns the rig logs;
+    the first two with the bench's file of the joint type and the load mass, as a user would
+    (``--joint``, ``--params``, ``--load-mass``).
+
+    Returns
+    -------
+    dict
+        ``path``, ``arguments`` (of ``exo-has diagnose``), ``record`` (the same as a
+        :class:`~exo_has_sim.diagnosis.records.Record`) and ``row`` (the draw's facts).
+
     """
     plant, seed, effect, size, sensors, folder, duration = task
     path = Path(folder) / f'{plant.replace(":", "_")}_{seed}_{effect}_{size}.csv'
@@ -140,26 +155,41 @@ def diagnose_draw(task: Task, quiet: bool = True) -> dict[str, Any]:
         params = third_rig.write_rig_file(Path(folder) / f'{plant.replace(":", "_")}_{seed}.yaml',
                                           circuit)
         arguments = ['--params', str(params)]
+        record = Record(path, None, Options(params=params))
     else:
         draw = _draw(plant, seed, effect, size, duration)
         columns = plant_a.COLUMNS if sensors == 'full' else POSITION_ONLY
         arguments = ['--joint', draw.joint_type, '--params', str(rig_file(draw.joint_type)),
                      '--load-mass', f'{LOAD_MASS}']
-    table = np.column_stack([draw.columns[name] for name in columns])
-    np.savetxt(path, table, fmt='%.17g', delimiter=',', header=','.join(columns), comments='')
-    out = path.with_suffix('.json')
-    started = time.perf_counter()
+        record = Record(path, draw.joint_type,
+                        Options(params=rig_file(draw.joint_type), load_mass=LOAD_MASS))
     if os.environ.get(CONSTANT_LOAD):
         arguments.append('--constant-load')
-    if quiet:
-        arguments.append('-q')
-    code = diagnose_main([str(path), *arguments, '--json', str(out)])
+        record = replace(record, options=replace(record.options, constant_load=True))
+    table = np.column_stack([draw.columns[name] for name in columns])
+    np.savetxt(path, table, fmt='%.17g', delimiter=',', header=','.join(columns), comments='')
+    return {'path': path, 'arguments': arguments, 'record': record,
+            'row': {'plant': plant, 'seed': seed, 'joint': draw.joint_type,
+                    'excitation': draw.excitation, 'effect': effect, 'size': draw.size,
+                    'sensors': sensors}}
+
+
+def diagnose_draw(task: Task, quiet: bool = True) -> dict[str, Any]:
+    """Draw one data set, write it as CSV, diagnose it by the command: the verdict, the truth."""
+    drawn = write_draw(task)
+    out = drawn['path'].with_suffix('.json')
+    started = time.perf_counter()
+    code = diagnose_main([str(drawn['path']), *drawn['arguments'], *(['-q'] if quiet else []),
+                          '--json', str(out)])
     wall = time.perf_counter() - started
     doc = json.loads(out.read_text()) if code in (0, STRUCTURE_STATUS) else {}
+    return _row(drawn['row'], code, doc, wall)
+
+
+def _row(facts: dict[str, Any], code: int, doc: dict[str, Any], wall: float) -> dict[str, Any]:
+    """Return a draw's result: its facts, and what its diagnosis's document says."""
     judged = doc.get('structure') or {}
-    return {'plant': plant, 'seed': seed, 'joint': draw.joint_type,
-            'excitation': draw.excitation, 'effect': effect, 'size': draw.size,
-            'sensors': sensors, 'code': code, 'verdict': doc.get('verdict'),
+    return {**facts, 'code': code, 'verdict': doc.get('verdict'),
             'structure_failed': [{key: f[key] for key in ('check', 'value', 'threshold')}
                                  for f in judged.get('findings', [])
                                  if f['gating'] and not f['passed']],
@@ -188,20 +218,40 @@ def _model_error(fits: dict[str, float]) -> float | None:
     return normalised_error(fits, tuple(fits)) if fits else None
 
 
-def run_tasks(tasks: Sequence[Task],
-              jobs: int) -> list[dict[str, Any]]:
-    """Diagnose the tasks on ``jobs`` processes, printing a line per result.
+#: Where the batches of :func:`run_tasks` run: local worker processes, or a Dask scheduler's
+#: cluster (--workers, --scheduler).
+WHERE: dict[str, Any] = {'workers': os.cpu_count() or 1, 'scheduler': None}
 
-    Several processes share the cores already: each then integrates on one thread.
+
+def run_tasks(tasks: Sequence[Task], jobs: int) -> list[dict[str, Any]]:
+    """Write the draws on ``jobs`` processes, then diagnose them as ``exo-has diagnose`` would.
+
+    The diagnoses are a batch of the command (:func:`exo_has_sim.diagnosis.batch.run_batch`),
+    on :data:`WHERE`'s worker processes or Dask cluster, into ``summary/`` of the draws'
+    folder; a line per result.
     """
-    results = []
+    if not tasks:
+        return []
     if jobs > 1:
         os.environ['EXO_HAS_THREADS'] = '1'
-    # Tethered: a worker ends with this process, even one killed by SIGKILL.
+    # Tethered: a process ends with this one, even one killed by SIGKILL.
     with multiprocessing.get_context('fork').Pool(jobs, tie_to_parent, (os.getpid(),)) as pool:
-        for row in pool.imap_unordered(diagnose_draw, tasks):
-            print(json.dumps(row), flush=True)
-            results.append(row)
+        drawn = pool.map(write_draw, tasks)
+    folder = Path(tasks[0][5]) / 'summary'
+    outcome = run_batch([d['record'] for d in drawn], folder, WHERE['workers'],
+                        WHERE['scheduler'], ProgressBar())
+    documents = SummaryFolder(folder)
+    by_record = {row.record: row for row in outcome.rows}
+    results = []
+    for d in drawn:
+        row = by_record[d['record']]
+        doc = documents.done(row.id) or {}
+        code = (STRUCTURE_STATUS if row.verdict == 'structure' else 0
+                if row.verdict in ('effect', 'none') else 1)
+        results.append(_row(d['row'], code, doc if code != 1 else {}, row.seconds or 0.0))
+        print(json.dumps(results[-1]), flush=True)
+    if outcome.interrupted:
+        raise KeyboardInterrupt
     return results
 
 
@@ -590,8 +640,15 @@ def main() -> None:
     parser.add_argument('--constant-load', action='store_true',
                         help="diagnose with --constant-load (the user's word that the load "
                         'does not vary)')
-    parser.add_argument('--jobs', type=int, default=os.cpu_count() or 1)
+    parser.add_argument('--workers', '--jobs', dest='jobs', type=int,
+                        default=os.cpu_count() or 1,
+                        help='processes that write the draws, and worker processes that '
+                        'diagnose them (default: one per CPU)')
+    parser.add_argument('--scheduler', metavar='ADDRESS',
+                        help='diagnose on the Dask cluster of this scheduler instead '
+                        '(exo-has diagnose --scheduler)')
     args = parser.parse_args()
+    WHERE.update(workers=args.jobs, scheduler=args.scheduler)
     if args.constant_load:
         os.environ[CONSTANT_LOAD] = '1'  # the diagnoses of the forked processes read it
     if args.null is not None:

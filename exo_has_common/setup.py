@@ -10,7 +10,9 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
     ],
-    install_requires=['setuptools'],
+    # What pip installs with it where no ROS is (the bounds of requirements.txt); colcon
+    # installs nothing of these (rosdep and requirements.txt do).
+    install_requires=['setuptools', 'PyYAML>=6.0,<7', 'rosbags>=0.10.4,<0.12', 'mcap>=1.2,<2'],
     zip_safe=True,
     maintainer='exo_has developers',
     maintainer_email='dev@exo-has.invalid',

@@ -33,6 +33,7 @@ PYTHON_PACKAGES = ('exo_has_common', 'exo_has_runtime', 'exo_has_sim', 'exo_has_
 ROSDEP_KEYS = {
     'can': 'python3-can',
     'canopen': 'python3-canopen',
+    'dask': 'python3-dask',
     'lz4': 'python3-lz4',
     'matplotlib': 'python3-matplotlib',
     'mcap': 'python3-mcap',

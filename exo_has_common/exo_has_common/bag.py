@@ -28,6 +28,7 @@ from exo_has_common.bags.reader import (
     TopicSummary,
     bag_summary,
     bag_topics,
+    bag_typestore,
     format_summary,
     read_messages,
 )
@@ -39,9 +40,9 @@ from exo_has_common.errors import BagError
 __all__ = [
     'MCAP_MAGIC', 'BagMessage', 'BagSummary', 'BagTopic', 'BagWriter', 'McapRecordReader',
     'QosProfileLike', 'RecoveryReport', 'Rosbag2Writer', 'TopicSummary', 'bag_summary',
-    'bag_topics', 'build_parser', 'default_typestore', 'ensure_message_type', 'format_summary',
-    'main', 'message_definition', 'msg_file', 'normalize_type_name', 'offered_qos',
-    'read_messages', 'recover_bag',
+    'bag_topics', 'bag_typestore', 'build_parser', 'default_typestore', 'ensure_message_type',
+    'format_summary', 'main', 'message_definition', 'msg_file', 'normalize_type_name',
+    'offered_qos', 'read_messages', 'recover_bag',
 ]
 
 

@@ -21,7 +21,25 @@ from exo_has_common.joints import JOINT_TYPES
 from exo_has_common.params_yaml import read_yaml_file
 from exo_has_sim.errors import ParameterError
 
-CONFIG_DIR = Path(__file__).resolve().parent.parent / 'config'
+
+def _config_dir() -> Path:
+    """Return the folder of the joint types' parameter files.
+
+    Beside the package in the source tree (where colcon's ``--symlink-install`` leaves it
+    too); else where setup.py's ``data_files`` put it under the prefix the package was
+    installed into, ``<prefix>/lib/pythonX.Y/site-packages/exo_has_sim`` (pip, and colcon
+    without symlinks): ``<prefix>/share/exo_has_sim/config``.
+    """
+    package = Path(__file__).resolve().parent
+    source = package.parent / 'config'
+    if source.is_dir() or len(package.parents) < 4:
+        return source
+    installed = package.parents[3] / 'share' / 'exo_has_sim' / 'config'
+    return installed if installed.is_dir() else source
+
+
+#: The joint types' parameter files (``hip.yaml``, ``knee.yaml``).
+CONFIG_DIR = _config_dir()
 #: Hydraulic circuits a parameter set can describe (:attr:`HasParameters.circuit`).
 CIRCUITS = ('paper', 'two_chamber', 'closed', 'switched')
 #: Values a parameters file may leave out, and what they then are: the paper's HAS (its

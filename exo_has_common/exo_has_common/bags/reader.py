@@ -15,9 +15,12 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import NamedTuple
 
-from rosbags.interfaces import Connection, ConnectionExtRosbag2, Qos
+from rosbags.interfaces import Connection, ConnectionExtRosbag2, MessageDefinitionFormat, Qos
 from rosbags.rosbag2 import Reader, ReaderError
+from rosbags.typesys import TypesysError, get_types_from_idl, get_types_from_msg
+from rosbags.typesys.store import Typestore
 
+from exo_has_common.bags.definitions import default_typestore
 from exo_has_common.bags.gaps import Gap, GapFinder
 from exo_has_common.errors import BagError, BagNotFoundError, MalformedBagError, UnfinishedBagError
 
@@ -88,6 +91,46 @@ def bag_topics(path: str | Path) -> list[BagTopic]:
         return sorted((BagTopic(connection.topic, connection.msgtype, connection.msgcount,
                                 tuple(_qos_of(connection)))
                        for connection in reader.connections), key=lambda t: t.topic)
+
+
+def bag_typestore(path: str | Path, base: Typestore | None = None) -> Typestore:
+    """Return a typestore that reads a bag's messages, from the bag's own definitions if need be.
+
+    ``base`` (default: :func:`~exo_has_common.bags.definitions.default_typestore`) where it knows
+    every type of the bag; else a copy of it with the types it lacks taken from the definitions
+    the bag embeds (rosbag2 and :class:`~exo_has_common.bags.writer.BagWriter` embed each
+    topic's): a machine without the workspace (the diagnosis installed by pip) reads the
+    exo_has_msgs types of our own sessions so.
+
+    Raises
+    ------
+    BagNotFoundError, UnfinishedBagError, MalformedBagError
+        As :func:`bag_topics`; also for an embedded definition that does not parse.
+
+    """
+    store = base if base is not None else default_typestore()
+    with _open_reader(path) as reader:
+        missing = {c.msgtype: c.msgdef for c in reader.connections
+                   if c.msgtype not in store.fielddefs}
+    if not missing:
+        return store
+    own = Typestore()
+    own.register(store.fielddefs)
+    for msgtype, definition in missing.items():
+        if not definition.data:
+            msg = (f'bag {path} holds no definition of {msgtype}, which this machine does not '
+                   'know either (is the workspace sourced?)')
+            raise MalformedBagError(msg)
+        try:
+            types = (get_types_from_idl(definition.data)
+                     if definition.format == MessageDefinitionFormat.IDL
+                     else get_types_from_msg(definition.data, msgtype))
+        except (TypesysError, ValueError) as exc:
+            msg = f'bag {path}: the definition of {msgtype} it holds does not parse: {exc}'
+            raise MalformedBagError(msg) from exc
+        own.register({name: fields for name, fields in types.items()
+                      if name not in own.fielddefs})
+    return own
 
 
 def _qos_of(connection: Connection) -> list[Qos]:

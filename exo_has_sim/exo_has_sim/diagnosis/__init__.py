@@ -38,7 +38,17 @@ and the whole:
   :mod:`~exo_has_sim.diagnosis.budget`;
 - :mod:`~exo_has_sim.diagnosis.result`: what it found, and the JSON document;
 - :mod:`~exo_has_sim.diagnosis.report`: the Markdown report, its plots and the summary;
-- :mod:`~exo_has_sim.diagnosis.cli`: ``exo-has diagnose``.
+- :mod:`~exo_has_sim.diagnosis.cli`: ``exo-has diagnose`` (``exo-has-diagnose`` where the
+  package was installed by pip, without ROS);
+
+and many records:
+
+- :mod:`~exo_has_sim.diagnosis.records`: the records the inputs hold, their ids, one
+  record's diagnosis (the unit of work);
+- :mod:`~exo_has_sim.diagnosis.batch`: diagnosing them on local worker processes or a Dask
+  cluster, resumably;
+- :mod:`~exo_has_sim.diagnosis.summary`: the summary folder, its records' JSON documents,
+  summary.md and summary.csv.
 """
 
 from __future__ import annotations

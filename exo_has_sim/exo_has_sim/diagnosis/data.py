@@ -442,7 +442,7 @@ def bag_columns(path: str | Path, joint: str) -> tuple[dict[str, FloatArray], st
         For a missing, unfinished or corrupt bag (naming the command that recovers it).
 
     """
-    from exo_has_common.bag import default_typestore, read_messages
+    from exo_has_common.bag import bag_typestore, read_messages
     from exo_has_common.topics import JOINT_REFERENCE_TOPIC, has_command_topic, has_state_topic
 
     try:
@@ -451,7 +451,7 @@ def bag_columns(path: str | Path, joint: str) -> tuple[dict[str, FloatArray], st
     except ValueError as exc:
         raise MeasurementError(str(exc)) from None
     reference_topic = '/' + JOINT_REFERENCE_TOPIC
-    typestore = default_typestore()
+    typestore = bag_typestore(path)
     fields = ('position', 'pressure_a', 'pressure_b', 'motor_speed', 'load_force',
               'motor_speed_command')
     states: dict[str, list[float]] = {name: [] for name in fields}

@@ -89,11 +89,23 @@ def load_plant(source: str | Path, plant: str = 'has', joint: str | None = None,
         raise MeasurementError(f'{measurement.source}: {exc}') from None
 
 
-def _only_joint(path: Path) -> str | None:
+def recorded_joints(path: str | Path) -> list[str]:
+    """Return the joints whose HAS states a bag records, sorted.
+
+    Raises
+    ------
+    exo_has_common.errors.BagError
+        For a missing, unfinished or unreadable bag.
+
+    """
     from exo_has_common.bag import bag_topics
 
-    joints = sorted({t.topic.strip('/').split('/')[0] for t in bag_topics(path)
-                     if t.topic.endswith('/has_state')})
+    return sorted({t.topic.strip('/').split('/')[0] for t in bag_topics(path)
+                   if t.topic.endswith('/has_state')})
+
+
+def _only_joint(path: Path) -> str | None:
+    joints = recorded_joints(path)
     if len(joints) == 1:
         return joints[0]
     msg = (f'{path} records {len(joints)} joints ({", ".join(joints) or "none"}): choose one '

@@ -149,6 +149,16 @@ def write_json(diagnosis: Diagnosis, path: Path) -> None:
                     encoding='utf-8')
 
 
+def document(diagnosis: Diagnosis) -> dict[str, Any]:
+    """Return the document of :meth:`Diagnosis.to_json` in plain Python types, as JSON reads it.
+
+    What a worker process hands back: it pickles anywhere and compares equal to what
+    :func:`write_json` wrote once read.
+    """
+    doc: dict[str, Any] = json.loads(json.dumps(diagnosis.to_json(), default=_jsonable))
+    return doc
+
+
 def _jsonable(value: Any) -> Any:
     if isinstance(value, np.generic):
         return value.item()
