@@ -6,6 +6,7 @@ parsed by the parser of what it names, as a shell would hand it the words:
 - ``exo-has SUBCOMMAND ARGS``: the subcommand must be registered in an ``exo_has.commands``
   entry point of a package's setup.py, and its arguments must parse with that command's own
   argparse parser (its module's ``build_parser()``, or ``_parser()``), up to ``--ros-args``;
+  ``exo-has-diagnose ARGS`` (the command of a pip install without ROS) is ``exo-has diagnose``;
 - ``ros2 run PACKAGE EXECUTABLE ARGS``: the executable must be a ``console_scripts`` entry of
   that package's setup.py; the arguments before ``--ros-args`` must parse with its parser, or
   be none for a node without one (the container's ``--node`` lists are split by its own code
@@ -233,6 +234,8 @@ def check_command(words: list[str], whole: bool = True) -> list[str]:
         rest = words[index + 1:]
         if word == 'exo-has' or word.endswith('/exo-has'):
             return _check_exo_has(rest, whole)
+        if word == 'exo-has-diagnose':  # the console script of a pip install without ROS
+            return _check_exo_has(['diagnose', *rest], whole)
         if word == 'ros2' and rest[:1] == ['run']:
             return _check_ros2_run(rest[1:], whole)
         if word == './run':
@@ -349,7 +352,7 @@ def check_text(text: str, page: Path) -> list[str]:
                 for problem in check_command(words)]
     for span in inline_spans(text):
         words = span.split()
-        if words and (words[0] in ('exo-has', './run') or words[:2] == ['ros2', 'run']
+        if words and (words[0] in ('exo-has', 'exo-has-diagnose', './run') or words[:2] == ['ros2', 'run']
                       or re.fullmatch(r'(python )?bench/\w+\.py', ' '.join(words[:2]))
                       or re.fullmatch(r'bench/\w+\.py', words[0])):
             problems += check_command(words, whole=False)
@@ -417,8 +420,9 @@ def test_the_checker_passes_a_page_whose_commands_and_links_exist() -> None:
 @pytest.mark.parametrize(('snippet', 'wording'), [
     ('```bash\nexo-has demo --no-such-option\n```', 'unrecognized arguments: --no-such-option'),
     ('```bash\nexo-has demo --hardware bus\n```', "invalid choice: 'bus'"),
-    ('```bash\nexo-has diagnose --joint hip\n```', 'required: input'),
+    ('```bash\nexo-has diagnose --joint hip\n```', 'required: INPUT'),
     ('```bash\nexo-has diagnoze log.csv\n```', 'exo-has diagnoze: no such subcommand'),
+    ('```bash\nexo-has-diagnose log.csv --worker 2\n```', 'unrecognized arguments: --worker'),
     ('```bash\nexo-has bag recover b --outptu c\n```', 'unrecognized arguments: --outptu'),
     ('```bash\nros2 run exo_has_sim plnat\n```', 'no such executable'),
     ('```bash\nros2 run exo_has_sim plant -p joint:=left_hip\n```', 'after --ros-args'),
