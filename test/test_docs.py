@@ -352,7 +352,8 @@ def check_text(text: str, page: Path) -> list[str]:
                 for problem in check_command(words)]
     for span in inline_spans(text):
         words = span.split()
-        if words and (words[0] in ('exo-has', 'exo-has-diagnose', './run') or words[:2] == ['ros2', 'run']
+        if words and (words[0] in ('exo-has', 'exo-has-diagnose', './run')
+                      or words[:2] == ['ros2', 'run']
                       or re.fullmatch(r'(python )?bench/\w+\.py', ' '.join(words[:2]))
                       or re.fullmatch(r'bench/\w+\.py', words[0])):
             problems += check_command(words, whole=False)
