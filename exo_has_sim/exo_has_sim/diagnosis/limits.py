@@ -41,7 +41,8 @@ about the delay (to first order both retard the drive alike), and the projection
 from the moved lag, judges only what is left (the first truth plant's hold-out draw of issue
 38: a 12 ms delay, the lag fitted at 17.9 ms where its file says 5 ms, under a stated limit
 of 1.9 ms). Where the lag is fitted, :func:`traded_with_lag` widens the delay's limit to the
-lag's departure from its file's value, up to the upper end of its 95 % interval, and says so.
+most the lag can have moved: from the least its file allows (its value less the uncertainty the
+file states) to the upper end of its fitted 95 % interval; and says so.
 """
 
 from __future__ import annotations
@@ -112,10 +113,10 @@ class DetectionLimit:
     margin : int or None
         Ladder steps between the projected and the stated limit (:data:`LIMIT_MARGIN`);
         None: no limit is stated for this effect in a circuit of this kind.
-    lag : tuple[float, float, float, float] or None
+    lag : tuple[float, float, float, float, float] or None
         For a transport delay where the motor's lag is fitted (:func:`traded_with_lag`): the
-        lag fitted, the ends of its 95 % interval and its parameters file's value [s]; None
-        otherwise.
+        lag fitted, the ends of its 95 % interval, its parameters file's value and the least
+        value the file's stated uncertainty allows [s]; None otherwise.
 
     """
 
@@ -127,15 +128,15 @@ class DetectionLimit:
     refused: float | None = None
     projected: float | None = None
     margin: int | None = 0
-    lag: tuple[float, float, float, float] | None = None
+    lag: tuple[float, float, float, float, float] | None = None
 
     @property
     def lag_reach(self) -> float | None:
         """The largest delay [s] the motor's fitted lag may have taken up, None if none."""
         if self.lag is None:
             return None
-        fitted, _, high, nominal = self.lag
-        reach = (high if math.isfinite(high) else fitted) - nominal
+        fitted, _, high, _, least = self.lag
+        reach = (high if math.isfinite(high) else fitted) - least
         return reach if reach > 0.0 else None
 
     @property
@@ -178,12 +179,13 @@ class DetectionLimit:
         reach = self.lag_reach
         if reach is None or self.lag is None:
             return ''
-        fitted, low, high, nominal = self.lag
-        interval = (f', 95 % interval {low:.3g} to {high:.3g} s' if math.isfinite(low)
+        fitted, low, high, nominal, least = self.lag
+        interval = (f' (95 % interval {low:.3g} to {high:.3g} s)' if math.isfinite(low)
                     and math.isfinite(high) else '')
         return (f"; a transport delay trades against the motor's lag, fitted here at "
-                f"{fitted:.3g} s where the parameters file says {nominal:.3g} s{interval}: "
-                f'a delay up to about {reach:.3g} s may have been taken up by the lag')
+                f'{fitted:.3g} s{interval} where the parameters file says {nominal:.3g} s (at '
+                f'least {least:.3g} s within its stated uncertainty): a delay up to about '
+                f'{reach:.3g} s may have been taken up by the lag')
 
     def to_json(self) -> dict[str, object]:
         """Return the limit as the JSON document carries it."""
@@ -192,9 +194,9 @@ class DetectionLimit:
             'sizes': list(self.sizes), 'named': list(self.named), 'refused': self.refused,
             'projected': self.projected, 'stated': self.stated}
         if self.lag is not None:
-            fitted, low, high, nominal = self.lag
+            fitted, low, high, nominal, least = self.lag
             out['motor_lag'] = {'fitted': fitted, 'ci95': [low, high], 'nominal': nominal,
-                                'delay_taken_up': self.lag_reach}
+                                'least': least, 'delay_taken_up': self.lag_reach}
         return out
 
 
@@ -239,17 +241,20 @@ def traded_with_lag(limit: DetectionLimit, model: Fit,
                     nominal: float) -> DetectionLimit:
     """Return a transport delay's limit widened by what the motor's fitted lag may hold.
 
-    Where ``model`` fits ``motor_time_constant`` and its 95 % interval reaches above the
-    parameters file's ``nominal`` lag [s], a delay up to that departure may have been taken
-    up by the lag (module docstring): a limit stated below it is raised to it, and the
-    sentence says so. Any other limit, or a lag not fitted, is returned as it is.
+    Where ``model`` fits ``motor_time_constant`` and the upper end of its 95 % interval lies
+    above the least lag the parameters file allows (its ``nominal`` value [s] less the
+    uncertainty of the fit's prior, which the file states), a delay up to that difference may
+    have been taken up by the lag (module docstring): a limit stated below it is raised to
+    it, and the sentence says so. Any other limit, or a lag not fitted, is returned as it is.
     """
     name = 'motor_time_constant'
-    if limit.effect != 'transport_delay' or name not in {p.name for p in model.free}:
+    lag = next((p for p in model.free if p.name == name), None)
+    if limit.effect != 'transport_delay' or lag is None:
         return limit
     low, high = model.interval.get(name, (math.nan, math.nan))
+    least = nominal * math.exp(-lag.prior) if lag.prior is not None else nominal
     traded = replace(limit, lag=(float(model.values[name]), float(low), float(high),
-                                 float(nominal)))
+                                 float(nominal), float(least)))
     reach = traded.lag_reach
     if reach is not None and traded.stated and traded.limit is not None \
             and traded.limit < reach:
