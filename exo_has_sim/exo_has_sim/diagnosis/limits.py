@@ -76,7 +76,10 @@ BELOW_GRID = 4.0
 #: The kinds are :attr:`~exo_has_sim.diagnosis.plants.WindowedModel.limit_kind`'s; the generic mass
 #: plant's limits were not measured so, and none is stated.
 LIMIT_MARGIN: dict[str, dict[str, int | None]] = {
-    'rodless': {'coulomb_friction': 2, 'pump_deadzone': 2, 'transport_delay': 2,
+    # A delay three steps: on the shipped hip and knee (issue 38) two held in 8 of 9 records,
+    # but in 3 of 4 of the hip's (bench/README.md, "Detection limits on the shipped hip and
+    # knee"; the bench's cylinder held with two).
+    'rodless': {'coulomb_friction': 2, 'pump_deadzone': 2, 'transport_delay': 3,
                 'relief_valve': 2, 'entrained_air': 2},
     'either': {'relief_valve': 2},
     # Not measured without the rodless pressure, and the full logs' margins do not carry
