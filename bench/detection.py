@@ -23,6 +23,15 @@ noise) two sizes of the limit's ladder stronger and two weaker, and diagnosed in
 stated limit holds when the stronger is named and the weaker not. ``--sensors position``
 keeps only the command and the position (the paper's own logging, section 4.2).
 
+``--file-limits N`` (with ``--files shipped``: the hip and knee files the project ships,
+12 mm bore and 40 mm stroke, instead of the bench's 14 mm, 130 mm of test/rigs.py; the plants'
+excitations shrink by the ratio of the strokes, :func:`rigs.motion_scale`, the load keeps its
+pressures and its 50 kg): N effect-free draws of 30 s from ``--first-seed``, the plants a and
+b taking turns; per parameters file the false alarms, each record's stated limits, and each
+effect put into the draw's twin at ``--factors`` times its stated limit: the share named.
+A fresh draw (``--first-seed`` :data:`FIRST_FRESH_SEED`, ``--factors 1``) checks that a
+stated limit holds in at least 80 % of records on seeds chosen after it was stated.
+
 ``--holdout N``: as ``--null``, on other seeds: a rule chosen on the null ensemble's draws
 is checked on draws it was not chosen on.
 
@@ -66,7 +75,7 @@ import third_rig
 import third_truth_plant as plant_c
 import truth_plant as plant_a
 from common import describe_machine, write_results
-from rigs import rig_file
+from rigs import SHIPPED_DIR, rig_file
 
 from exo_has_runtime.tether import tie_to_parent
 from exo_has_sim.diagnosis.batch import ProgressBar, run_batch
@@ -80,6 +89,7 @@ from exo_has_sim.parameters import load_parameters
 DURATION = 30.0  # s
 LOAD_MASS = 50.0  # kg, both plants' default
 PLANTS = {'a': plant_a, 'b': plant_b}
+JOINT_NAMES = ('hip', 'knee')
 FIRST_NULL_SEED = 70000
 #: Effect-free draws apart from the null ensemble's, on which a rule chosen there is checked.
 FIRST_HOLDOUT_SEED = 75000
@@ -88,6 +98,14 @@ FIRST_TWIN_SEED = 90000
 FIRST_THIRD_SEED = 95000
 FIRST_LIMIT_CHECK_SEED = 97000
 FIRST_LOW_RELIEF_SEED = 98000
+#: --file-limits on the shipped files: the ensemble whose records' limits are measured, and
+#: the fresh draw that checks them (its seeds chosen after the first's table was written).
+FIRST_FILE_LIMIT_SEED = 100000
+FIRST_FRESH_SEED = 110000
+#: Parameters files the truth plants draw around and the diagnoses are given (--files): the
+#: bench's (test/rigs.py) or the shipped hip and knee (exo_has_sim/config).
+FILES: dict[str, Path | None] = {'bench': None, 'shipped': SHIPPED_DIR}
+RIG: dict[str, Path | None] = {'folder': None}
 #: With --low-relief: the crack pressures, as shares of the parameters file's relief setting
 #: (18 MPa), spread evenly over the draws: the hold-out plant's missed valve cracked at 23 %.
 LOW_RELIEF_SHARES = (0.2, 0.3)
@@ -122,7 +140,11 @@ POSITION_ONLY = ('time', 'motor_speed_command', 'position', 'reference')
 
 def _draw(plant: str, seed: int, effect: str, size: float | None, duration: float) -> Any:
     module = PLANTS[plant]
-    return module.draw(seed, effect=effect, size=size, duration=duration, load_mass=LOAD_MASS)
+    if RIG['folder'] is None:
+        return module.draw(seed, effect=effect, size=size, duration=duration,
+                           load_mass=LOAD_MASS)
+    return module.draw(seed, effect=effect, size=size, duration=duration, load_mass=LOAD_MASS,
+                       rig=RIG['folder'])
 
 
 #: A draw to diagnose: plant, seed, effect, size (None: drawn), sensors, folder, duration [s].
@@ -159,19 +181,23 @@ def write_draw(task: Task) -> dict[str, Any]:
     else:
         draw = _draw(plant, seed, effect, size, duration)
         columns = plant_a.COLUMNS if sensors == 'full' else POSITION_ONLY
-        arguments = ['--joint', draw.joint_type, '--params', str(rig_file(draw.joint_type)),
+        params = rig_file(draw.joint_type, RIG['folder'])
+        arguments = ['--joint', draw.joint_type, '--params', str(params),
                      '--load-mass', f'{LOAD_MASS}']
-        record = Record(path, draw.joint_type,
-                        Options(params=rig_file(draw.joint_type), load_mass=LOAD_MASS))
+        record = Record(path, draw.joint_type, Options(params=params, load_mass=LOAD_MASS))
     if os.environ.get(CONSTANT_LOAD):
         arguments.append('--constant-load')
         record = replace(record, options=replace(record.options, constant_load=True))
     table = np.column_stack([draw.columns[name] for name in columns])
     np.savetxt(path, table, fmt='%.17g', delimiter=',', header=','.join(columns), comments='')
+    stroke = load_parameters(record.options.params).stroke
     return {'path': path, 'arguments': arguments, 'record': record,
             'row': {'plant': plant, 'seed': seed, 'joint': draw.joint_type,
                     'excitation': draw.excitation, 'effect': effect, 'size': draw.size,
-                    'sensors': sensors}}
+                    'sensors': sensors,
+                    # The measured position's range as shares of the file's stroke.
+                    'stroke_used': [float(np.min(draw.columns['position'])) / stroke,
+                                    float(np.max(draw.columns['position'])) / stroke]}}
 
 
 def diagnose_draw(task: Task, quiet: bool = True) -> dict[str, Any]:
@@ -349,8 +375,9 @@ def detection_limits(draws: int, sensors: str, jobs: int) -> None:
 
 
 def _tag(sensors: str) -> str:
-    """Name the sensor set of a results file, and --constant-load where given."""
-    return sensors + ('_constant_load' if os.environ.get(CONSTANT_LOAD) else '')
+    """Name the sensor set of a results file, --constant-load and --files shipped."""
+    return (sensors + ('_constant_load' if os.environ.get(CONSTANT_LOAD) else '')
+            + ('' if RIG['folder'] is None else '_shipped'))
 
 
 def _spread(values: Sequence[float | None]) -> str:
@@ -600,6 +627,88 @@ def stated_limits(count: int, plants: str, sensors: str, jobs: int,
                   lines)
 
 
+def _twin_size(effect: str, limit: float, factor: float) -> float:
+    """Return the size ``factor`` times as strong as a stated limit.
+
+    A crack pressure's effect grows as it falls: ``factor`` divides it.
+    """
+    return limit / factor if effect == 'relief_valve' else limit * factor
+
+
+def file_limits(count: int, sensors: str, jobs: int, first_seed: int,
+                factors: Sequence[float], duration: float = DURATION) -> None:
+    """Measure the false alarms and check the stated limits per parameters file (--files).
+
+    ``count`` effect-free draws of ``duration`` [s] from ``first_seed``, the plants a and b
+    taking turns, each drawing its joint type; each effect a plant can hide whose limit the
+    record states is put into the draw's twin (the same seed and length) at ``factors`` times
+    the limit (:func:`_twin_size`) and diagnosed in full. Per file (joint type): the false
+    alarms, each effect's stated limits (median and range), and the share of twins that named
+    it (first) per factor; a stated limit holds in a record when its twin at factor 1 names it.
+    """
+    with tempfile.TemporaryDirectory() as folder:
+        bases = run_tasks([('ab'[i % 2], first_seed + i, 'none', None, sensors, folder,
+                            duration) for i in range(count)], jobs)
+        tasks = []
+        for base in bases:
+            if base['causes'] or base['verdict'] == 'structure':
+                continue  # a record that named a cause states no limit for it
+            for effect, limit in base['limits'].items():
+                if limit is None or effect not in PLANTS[base['plant']].EFFECTS:
+                    continue
+                tasks += [(base['plant'], base['seed'], effect, _twin_size(effect, limit, f),
+                           sensors, folder, duration) for f in factors]
+        twins = run_tasks(tasks, jobs)
+    stated = {(b['plant'], b['seed'], e): v for b in bases for e, v in b['limits'].items()}
+    for row in twins:
+        limit = stated[(row['plant'], row['seed'], row['effect'])]
+        row['factor'] = (limit / row['size'] if row['effect'] == 'relief_valve'
+                         else row['size'] / limit)
+    used = [u for r in bases + twins for u in r['stroke_used']]
+    lines = [f'bench/detection.py --file-limits {count} --first-seed {first_seed} --files '
+             f'{"bench" if RIG["folder"] is None else "shipped"} --sensors {sensors} '
+             f'--factors {" ".join(f"{f:g}" for f in factors)} --duration {duration:g}: '
+             f'{describe_machine()}',
+             f'{len(bases)} effect-free draws of {duration:g} s (plants a and b taking turns) '
+             f'and {len(twins)} twins; position over the stroke: {min(used):.2f} to '
+             f'{max(used):.2f} of it; wall per diagnosis median '
+             f'{float(np.median([r["wall_s"] for r in bases + twins])):.1f} s']
+    table: dict[str, Any] = {}
+    for joint in JOINT_NAMES:
+        mine = [b for b in bases if b['joint'] == joint]
+        quiet = [b for b in mine if not b['causes'] and b['verdict'] != 'structure']
+        alarms = [b for b in mine if b['causes']]
+        lines.append(f'{joint} ({rig_file(joint, RIG["folder"]).name}): false alarms '
+                     f'{len(alarms)} of {len(mine)} effect-free draws'
+                     + ''.join(f'; {b["plant"]} {b["seed"]} named {", ".join(b["causes"])}'
+                               for b in alarms)
+                     + f'; structure verdicts {sum(b["verdict"] == "structure" for b in mine)}')
+        rows: dict[str, Any] = {'draws': len(mine), 'false_alarms': len(alarms)}
+        for effect in LIMIT_SIZES:
+            values = [b['limits'].get(effect) for b in quiet
+                      if effect in PLANTS[b['plant']].EFFECTS]
+            found = [v for v in values if v is not None]
+            mytwins = [t for t in twins if t['joint'] == joint and t['effect'] == effect]
+            shares = {}
+            for f in factors:
+                at = [t for t in mytwins if abs(t['factor'] - f) < 1e-6 * f]
+                named = sum(bool(t['causes']) and t['causes'][0] == effect for t in at)
+                shares[f'{f:g}'] = [named, len(at)]
+            wrong = [t for t in mytwins if set(t['causes']) - {effect}]
+            rows[effect] = {'limits': found, 'none_stated': len(values) - len(found),
+                            'named': shares, 'another_cause': len(wrong)}
+            spread = (f'median {float(np.median(found)):.3g}, {min(found):.3g} to '
+                      f'{max(found):.3g}' if found else 'none stated')
+            lines.append(f'  {effect}: stated {spread} ({len(found)} of {len(values)} records); '
+                         + ', '.join(f'x{f}: named {n}/{k}' for f, (n, k) in shares.items())
+                         + (f'; another cause named in {len(wrong)}: '
+                            + ', '.join(f'{t["plant"]} {t["seed"]} {t["causes"]}'
+                                        for t in wrong) if wrong else ''))
+        table[joint] = rows
+    write_results(f'detection_file_limits_{_tag(sensors)}_{first_seed}',
+                  {'bases': bases, 'twins': twins, 'table': table}, lines)
+
+
 def main() -> None:
     """Parse the arguments and run the ensemble, the limits or the twins."""
     parser = argparse.ArgumentParser(description=(__doc__ or '').splitlines()[0])
@@ -635,6 +744,19 @@ def main() -> None:
     parser.add_argument('--circuit', choices=('switched', 'paper'), default='switched',
                         help="with --third: the rig's own circuit in its parameters file, or "
                         "the paper's")
+    mode.add_argument('--file-limits', type=int, metavar='N',
+                      help="effect-free draws: per parameters file, the false alarms, the "
+                      "records' stated limits and their twins at --factors times them")
+    parser.add_argument('--first-seed', type=int,
+                        help=f'with --file-limits: the first seed (default {FIRST_FILE_LIMIT_SEED}'
+                        f'; the fresh draw: {FIRST_FRESH_SEED})')
+    parser.add_argument('--factors', type=float, nargs='+', default=[1.0, 2.0],
+                        help='with --file-limits: sizes of the twins, as multiples of the limit')
+    parser.add_argument('--duration', type=float, default=DURATION,
+                        help='with --file-limits: length of each draw [s]')
+    parser.add_argument('--files', choices=tuple(FILES), default='bench',
+                        help="the parameters files the plants a and b draw around: the bench's "
+                        '(test/bench_rig) or the shipped hip and knee (exo_has_sim/config)')
     parser.add_argument('--draws', type=int, default=10, help='draws per effect and size')
     parser.add_argument('--sensors', choices=('full', 'position'), default='full')
     parser.add_argument('--constant-load', action='store_true',
@@ -649,6 +771,7 @@ def main() -> None:
                         '(exo-has diagnose --scheduler)')
     args = parser.parse_args()
     WHERE.update(workers=args.jobs, scheduler=args.scheduler)
+    RIG['folder'] = FILES[args.files]
     if args.constant_load:
         os.environ[CONSTANT_LOAD] = '1'  # the diagnoses of the forked processes read it
     if args.null is not None:
@@ -665,6 +788,9 @@ def main() -> None:
         low_relief(args.low_relief, args.sensors, args.jobs)
     elif args.third is not None:
         third_plant(args.third, args.circuit, args.sensors, args.jobs)
+    elif args.file_limits is not None:
+        file_limits(args.file_limits, args.sensors, args.jobs,
+                    args.first_seed or FIRST_FILE_LIMIT_SEED, args.factors, args.duration)
     elif args.stated_limits is not None:
         stated_limits(args.stated_limits, args.plants, args.sensors, args.jobs, args.offsets,
                       args.effects)

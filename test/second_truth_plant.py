@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
-from rigs import rig_parameters
+from rigs import motion_scale, rig_parameters
 
 FloatArray = NDArray[np.float64]
 
@@ -127,7 +127,8 @@ _N_SINES = 8
 _N_STRIDE_FACTORS = 64
 
 
-def nominal_plant(joint_type: str, load_mass: float = 50.0) -> dict[str, float]:
+def nominal_plant(joint_type: str, load_mass: float = 50.0,
+                  rig: Path | None = None) -> dict[str, float]:
     """Give the plant constants as the parameters file states them (nuisances at nominal).
 
     Parameters
@@ -136,6 +137,8 @@ def nominal_plant(joint_type: str, load_mass: float = 50.0) -> dict[str, float]:
         ``'hip'`` or ``'knee'``.
     load_mass : float
         Load mass M_L moved with the piston [kg].
+    rig : Path or None
+        Folder of the parameters files (default: the bench's, test/rigs.py).
 
     Returns
     -------
@@ -143,7 +146,7 @@ def nominal_plant(joint_type: str, load_mass: float = 50.0) -> dict[str, float]:
         Every constant the simulation needs, SI.
 
     """
-    params = rig_parameters(joint_type)
+    params = rig_parameters(joint_type, rig)
     area_a = math.pi / 4.0 * params.bore_diameter**2
     area_b = math.pi / 4.0 * (params.bore_diameter**2 - params.rod_diameter**2)
     zeta = 0.75
@@ -663,15 +666,18 @@ def _window(t: FloatArray, ramp: float) -> tuple[FloatArray, FloatArray]:
 
 
 def _sine_sum(
-    t: FloatArray, centre: float, values: FloatArray
+    t: FloatArray, centre: float, values: FloatArray, scale: float = 1.0
 ) -> tuple[FloatArray, FloatArray, dict[str, float]]:
-    """Sum of sines, one per log band of 0.2-5 Hz, amplitude ~ 1/f, ramped in over 1.5 s."""
+    """Sum of sines, one per log band of 0.2-5 Hz, amplitude ~ 1/f, ramped in over 1.5 s.
+
+    ``scale`` multiplies every amplitude and velocity (:func:`rigs.motion_scale`).
+    """
     u_freq, u_phase, u_amp = values[:_N_SINES], values[_N_SINES : 2 * _N_SINES], values[-1]
     edges = np.geomspace(0.2, 5.0, _N_SINES + 1)
     freqs = edges[:-1] * (edges[1:] / edges[:-1]) ** u_freq
     phases = 2.0 * np.pi * u_phase
-    total = 0.015 + 0.007 * u_amp  # sum of amplitudes [m]
-    v_bound = 0.09  # bound of the summed velocity amplitudes [m/s]
+    total = scale * (0.015 + 0.007 * u_amp)  # sum of amplitudes [m]
+    v_bound = scale * 0.09  # bound of the summed velocity amplitudes [m/s]
     scale = min(total / np.sum(1.0 / freqs), v_bound / (2.0 * np.pi * _N_SINES))
     amps = scale / freqs
     omega = 2.0 * np.pi * freqs
@@ -692,11 +698,14 @@ _GAIT_SHAPES = {
 
 
 def _gait(
-    t: FloatArray, joint_type: str, centre: float, values: FloatArray
+    t: FloatArray, joint_type: str, centre: float, values: FloatArray, scale: float = 1.0
 ) -> tuple[FloatArray, FloatArray, float, dict[str, float]]:
-    """Periodic stride-like stroke: a few harmonics of the stride, ramped in over 1.5 s."""
+    """Periodic stride-like stroke: a few harmonics of the stride, ramped in over 1.5 s.
+
+    ``scale`` multiplies the excursion and the velocity bound (:func:`rigs.motion_scale`).
+    """
     stride = 1.3 + 0.4 * values[0]
-    peak_to_peak = 0.030 + 0.010 * values[1]
+    peak_to_peak = scale * (0.030 + 0.010 * values[1])
     jitter = 0.3 * (values[2:6] - 0.5)
     omega = 2.0 * np.pi / stride
     shape = np.zeros_like(t)
@@ -709,7 +718,8 @@ def _gait(
         rate -= amp * k * omega * np.sin(k * omega * t + phase + dphi)
         fine_shape += amp * np.cos(k * omega * fine + phase + dphi)
     fine_rate = np.gradient(fine_shape, fine)
-    gain = min(peak_to_peak / float(np.ptp(fine_shape)), 0.1 / float(np.max(np.abs(fine_rate))))
+    gain = min(peak_to_peak / float(np.ptp(fine_shape)),
+               scale * 0.1 / float(np.max(np.abs(fine_rate))))
     w, dw = _window(t, 1.5)
     info = {'stride_period': stride, 'stroke_peak_to_peak': gain * float(np.ptp(fine_shape))}
     return centre + gain * w * shape, gain * (w * rate + dw * shape), stride, info
@@ -777,6 +787,7 @@ def draw(
     excitation: str | None = None,
     duration: float = 30.0,
     load_mass: float = 50.0,
+    rig: Path | None = None,
 ) -> Draw:
     """Draw one experiment from a seed and simulate it.
 
@@ -799,6 +810,10 @@ def draw(
         Length of the record [s].
     load_mass : float
         Load mass [kg].
+    rig : Path or None
+        Folder of the parameters files to draw around (default: the bench's, test/rigs.py;
+        e.g. ``rigs.SHIPPED_DIR``); the excitation shrinks with its stroke
+        (:func:`rigs.motion_scale`), the load keeps its pressures.
 
     Returns
     -------
@@ -838,7 +853,8 @@ def draw(
     if excitation not in EXCITATIONS:
         raise ValueError(f'unknown excitation {excitation!r}; expected one of {EXCITATIONS}')
 
-    plant = nominal_plant(joint_type, load_mass)
+    plant = nominal_plant(joint_type, load_mass, rig)
+    scale = motion_scale(joint_type, rig)
     parameters = {}
     for (name, spread), u in zip(NUISANCE_SPREADS.items(), u_nuisance, strict=True):
         parameters[name] = plant[name] * (1.0 + spread * (2.0 * u - 1.0))
@@ -858,12 +874,12 @@ def draw(
     noise['load_force_quantum'] = LOAD_FORCE_QUANTUM
 
     t: FloatArray = np.arange(count, dtype=np.float64) * PERIOD
-    centre = 0.5 * plant['stroke'] + 0.010 * (u_centre - 0.5)
+    centre = 0.5 * plant['stroke'] + scale * 0.010 * (u_centre - 0.5)
     if excitation == 'sine_sum':
-        reference, reference_velocity, info = _sine_sum(t, centre, u_sines)
+        reference, reference_velocity, info = _sine_sum(t, centre, u_sines, scale)
         stride = 0.0
     else:
-        reference, reference_velocity, stride, info = _gait(t, joint_type, centre, u_gait)
+        reference, reference_velocity, stride, info = _gait(t, joint_type, centre, u_gait, scale)
     load, load_info = _load_profile(
         t,
         excitation,

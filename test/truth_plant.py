@@ -86,7 +86,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 from numpy.typing import ArrayLike, NDArray
-from rigs import rig_parameters
+from rigs import motion_scale, rig_parameters
 
 from exo_has_sim.gait import GaitCycle, load_gait_cycle
 from exo_has_sim.kinematics import Linkage
@@ -742,8 +742,8 @@ def _ramp(t: FloatArray) -> tuple[FloatArray, FloatArray]:
 _GAIT: dict[str, GaitCycle] = {}
 
 
-def sine_sum_reference(rng: np.random.Generator, t: FloatArray,
-                       stroke: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+def sine_sum_reference(rng: np.random.Generator, t: FloatArray, stroke: float,
+                       scale: float = 1.0) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Sum of eight sines 0.2-5 Hz about mid stroke (paper 4.2, Fig. 13), and its load profile.
 
     One frequency is drawn log-uniformly in each of eight log-spaced bands, with a random
@@ -760,6 +760,8 @@ def sine_sum_reference(rng: np.random.Generator, t: FloatArray,
         Sample times [s].
     stroke : float
         Cylinder stroke [m].
+    scale : float
+        Factor on every excursion and velocity (:func:`rigs.motion_scale`, 1 on the bench).
 
     Returns
     -------
@@ -771,7 +773,7 @@ def sine_sum_reference(rng: np.random.Generator, t: FloatArray,
     freq = np.exp(rng.uniform(np.log(edges[:-1]), np.log(edges[1:])))
     phase = rng.uniform(0.0, 2.0 * math.pi, freq.size)
     omega = 2.0 * math.pi * freq
-    amplitude = np.minimum(8.0e-3, 15.0e-3 / omega)
+    amplitude = scale * np.minimum(8.0e-3, 15.0e-3 / omega)
     arg = np.outer(t, omega) + phase
     motion = np.sin(arg) @ amplitude
     motion_rate = np.cos(arg) @ (amplitude * omega)
@@ -782,8 +784,8 @@ def sine_sum_reference(rng: np.random.Generator, t: FloatArray,
     return (stroke / 2.0 + ramp * motion, ramp_rate * motion + ramp * motion_rate, profile)
 
 
-def walk_reference(rng: np.random.Generator, t: FloatArray,
-                   params: HasParameters) -> tuple[FloatArray, FloatArray, FloatArray]:
+def walk_reference(rng: np.random.Generator, t: FloatArray, params: HasParameters,
+                   scale: float = 1.0) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Gait-like periodic cylinder trajectory at the paper's 0.85 Hz stride frequency.
 
     The shape is the joint's own: Winter's hip or knee angle over the gait cycle through the
@@ -801,6 +803,8 @@ def walk_reference(rng: np.random.Generator, t: FloatArray,
         Sample times [s].
     params : HasParameters
         The joint (type, linkage, stroke).
+    scale : float
+        Factor on the drawn peak velocity (:func:`rigs.motion_scale`, 1 on the bench).
 
     Returns
     -------
@@ -813,7 +817,7 @@ def walk_reference(rng: np.random.Generator, t: FloatArray,
     gait = _GAIT['winter']
     linkage = Linkage.from_parameters(params)
     phase0 = rng.uniform()
-    peak_velocity = rng.uniform(0.08, 0.12)
+    peak_velocity = scale * rng.uniform(0.08, 0.12)
     grid = np.linspace(0.0, 1.0, 2001)
 
     def shape(phase: FloatArray) -> FloatArray:
@@ -837,8 +841,8 @@ def walk_reference(rng: np.random.Generator, t: FloatArray,
     return (params.stroke / 2.0 + ramp * value, ramp_rate * value + ramp * value_rate, profile)
 
 
-def squat_reference(rng: np.random.Generator, t: FloatArray,
-                    stroke: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+def squat_reference(rng: np.random.Generator, t: FloatArray, stroke: float,
+                    scale: float = 1.0) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Raised-cosine squats at 0.5 Hz (paper 5.2) from 15 mm below full extension.
 
     The depth is drawn in 50-90 mm (38-69 % of the 130 mm stroke; flexion shortens the
@@ -852,6 +856,9 @@ def squat_reference(rng: np.random.Generator, t: FloatArray,
         Sample times [s].
     stroke : float
         Cylinder stroke [m].
+    scale : float
+        Factor on the depth and on the top's distance from full extension
+        (:func:`rigs.motion_scale`, 1 on the bench).
 
     Returns
     -------
@@ -859,10 +866,10 @@ def squat_reference(rng: np.random.Generator, t: FloatArray,
         Reference [m], its velocity [m/s] and the load profile in [0, 1].
 
     """
-    depth = rng.uniform(0.05, 0.09)
+    depth = scale * rng.uniform(0.05, 0.09)
     omega = 2.0 * math.pi * SQUAT_FREQUENCY
     profile = 0.5 * (1.0 - np.cos(omega * t))
-    top = stroke - 0.015
+    top = stroke - scale * 0.015
     return top - depth * profile, -depth * 0.5 * omega * np.sin(omega * t), profile
 
 
@@ -901,6 +908,8 @@ class Draw:
         The :data:`COLUMNS` as measured.
     clean : dict[str, np.ndarray]
         The same without sensor noise.
+    rig : Path or None
+        Folder of the parameters files drawn around (None: the bench's, test/rigs.py).
 
     """
 
@@ -916,6 +925,7 @@ class Draw:
     period: float
     columns: dict[str, FloatArray]
     clean: dict[str, FloatArray]
+    rig: Path | None = None
 
     @property
     def effects(self) -> dict[str, float]:
@@ -923,23 +933,26 @@ class Draw:
         return {} if self.effect == 'none' else {self.effect: self.size}
 
 
-_NOMINAL: dict[str, HasParameters] = {}
+_NOMINAL: dict[tuple[str, Path | None], HasParameters] = {}
 
 
-def nominal_parameters(joint_type: str) -> HasParameters:
-    """Return the nominal parameter set of a joint type (the bench's files, test/rigs.py)."""
+def nominal_parameters(joint_type: str, rig: Path | None = None) -> HasParameters:
+    """Return the nominal parameter set of a joint type.
+
+    From the bench's files (test/rigs.py), or those in the folder ``rig``.
+    """
     if joint_type not in JOINT_TYPES:
         msg = f'joint_type must be one of {JOINT_TYPES}, got {joint_type!r}'
         raise ValueError(msg)
-    if joint_type not in _NOMINAL:
-        _NOMINAL[joint_type] = rig_parameters(joint_type)
-    return _NOMINAL[joint_type]
+    if (joint_type, rig) not in _NOMINAL:
+        _NOMINAL[(joint_type, rig)] = rig_parameters(joint_type, rig)
+    return _NOMINAL[(joint_type, rig)]
 
 
 def plant_parameters(draw: Draw) -> HasParameters:
     """Return the plant parameters a draw was simulated with."""
-    return nominal_parameters(draw.joint_type).replace(load_mass=draw.load_mass,
-                                                       **draw.parameters)
+    return nominal_parameters(draw.joint_type, draw.rig).replace(load_mass=draw.load_mass,
+                                                                 **draw.parameters)
 
 
 def effect_size(effect: str, fraction: float) -> float:
@@ -965,7 +978,7 @@ def effect_size(effect: str, fraction: float) -> float:
 
 def draw(seed: int, joint_type: str | None = None, *, effect: str | None = None,
          size: float | None = None, excitation: str | None = None, duration: float = 20.0,
-         load_mass: float = 50.0) -> Draw:
+         load_mass: float = 50.0, rig: Path | None = None) -> Draw:
     """Draw one data set from ``numpy.random.default_rng(seed)`` and simulate it.
 
     The generator always takes the same variates in the same order, and the excitation and
@@ -1000,6 +1013,10 @@ def draw(seed: int, joint_type: str | None = None, *, effect: str | None = None,
         Length of the data [s].
     load_mass : float
         Load mass [kg].
+    rig : Path or None
+        Folder of the parameters files to draw around (default: the bench's, test/rigs.py;
+        e.g. ``rigs.SHIPPED_DIR``); the excitations shrink with its stroke
+        (:func:`rigs.motion_scale`), the load keeps its pressures.
 
     Returns
     -------
@@ -1026,7 +1043,8 @@ def draw(seed: int, joint_type: str | None = None, *, effect: str | None = None,
         raise ValueError(msg)
     chosen = (0.0 if effect == 'none' else float(size) if size is not None
               else effect_size(effect, u_size))
-    nominal = nominal_parameters(joint_type)
+    nominal = nominal_parameters(joint_type, rig)
+    scale = motion_scale(joint_type, rig)
     parameters = {name: float(getattr(nominal, name) * factor)
                   for name, factor in zip(DRAWN_PARAMETERS, factors, strict=True)}
     parameters['cylinder_leakage'] = float(nominal.cylinder_leakage)
@@ -1036,11 +1054,11 @@ def draw(seed: int, joint_type: str | None = None, *, effect: str | None = None,
     t = np.arange(round(duration * SAMPLE_RATE)) * period
     excitation_rng = np.random.default_rng(excitation_seed)
     if excitation == 'sine_sum':
-        x_ref, v_ref, profile = sine_sum_reference(excitation_rng, t, params.stroke)
+        x_ref, v_ref, profile = sine_sum_reference(excitation_rng, t, params.stroke, scale)
     elif excitation == 'walk':
-        x_ref, v_ref, profile = walk_reference(excitation_rng, t, params)
+        x_ref, v_ref, profile = walk_reference(excitation_rng, t, params, scale)
     else:
-        x_ref, v_ref, profile = squat_reference(excitation_rng, t, params.stroke)
+        x_ref, v_ref, profile = squat_reference(excitation_rng, t, params.stroke, scale)
     load_force = params.area_a * (p_low + (p_high - p_low) * profile)
     effects = {} if effect == 'none' else {effect: chosen}
     result = simulate(params, effects, reference=x_ref, reference_velocity=v_ref,
@@ -1048,7 +1066,7 @@ def draw(seed: int, joint_type: str | None = None, *, effect: str | None = None,
     return Draw(seed=seed, effect=effect, size=chosen, joint_type=joint_type,
                 excitation=excitation, parameters=parameters, load_mass=load_mass,
                 noise=noise, load={'pressure_low': p_low, 'pressure_high': p_high},
-                period=period, columns=result.noisy, clean=result.clean)
+                period=period, columns=result.noisy, clean=result.clean, rig=rig)
 
 
 def write_csv(draw: Draw, path: str | Path) -> None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -108,3 +110,35 @@ def test_a_limit_is_stated_its_calibrated_margin_stronger_or_not_at_all():
     quiet = DetectionLimit('entrained_air', '-', sizes, named, None, projected=2.0, margin=None)
     assert not quiet.stated and 'no limit is stated' in quiet.sentence()
     assert quiet.to_json()['stated'] is False
+
+
+def test_a_delay_limit_where_the_motor_lag_is_fitted_covers_the_delay_the_lag_took_up():
+    # Issue 38's hold-out draw: a 12 ms delay unnamed, the lag fitted at 17.9 ms where the
+    # file says 5 ms, the stated limit 1.9 ms.
+    from exo_has_sim.diagnosis.fitting import Fit
+    from exo_has_sim.diagnosis.limits import traded_with_lag
+    from exo_has_sim.diagnosis.plants import Parameter
+
+    # The file's +-30 % (a prior of log 1.3): the lag may be as short as 5 / 1.3 = 3.85 ms.
+    lag = Parameter('motor_time_constant', 's', 0.005, 0.0005, 0.05, 'motor lag',
+                    prior=math.log1p(0.3))
+    fit = Fit({'motor_time_constant': 0.0179}, (lag,),
+              {'motor_time_constant': (0.0165, 0.0194)})
+    sizes = (0.0007, 0.0012, 0.0019, 0.0032, 0.0053, 0.0145)
+    stated = DetectionLimit('transport_delay', 's', sizes, (False, True, True, True, True, True),
+                            0.0019, projected=0.0007, margin=2)
+    traded = traded_with_lag(stated, fit, 0.005)
+    assert traded.limit == pytest.approx(0.0194 - 0.005 / 1.3) and traded.limit > 0.012
+    sentence = traded.sentence()
+    assert 'under about 0.0156 s may go unnamed' in sentence
+    assert "trades against the motor's lag, fitted here at 0.0179 s" in sentence
+    assert 'a delay up to about 0.0156 s may have been taken up by the lag' in sentence
+    assert traded.to_json()['motor_lag']['delay_taken_up'] == pytest.approx(0.0156, abs=1e-4)
+    # A lag fitted within its file's uncertainty took no delay; nor does a fixed one.
+    low = Fit({'motor_time_constant': 0.0035}, (lag,),
+              {'motor_time_constant': (0.0030, 0.0038)})
+    assert traded_with_lag(stated, low, 0.005).limit == 0.0019
+    assert 'trades' not in traded_with_lag(stated, low, 0.005).sentence()
+    assert traded_with_lag(stated, Fit({'motor_time_constant': 0.0179}, ()), 0.005) == stated
+    friction = DetectionLimit('coulomb_friction', 'N', (1.0, 2.0), (True, True), 1.0)
+    assert traded_with_lag(friction, fit, 0.005) == friction

@@ -65,7 +65,7 @@ from exo_has_sim.diagnosis.fitting import (
     robust_rms,
 )
 from exo_has_sim.diagnosis.has_plant import HasPlant
-from exo_has_sim.diagnosis.limits import detection_limits, refused_at
+from exo_has_sim.diagnosis.limits import detection_limits, refused_at, traded_with_lag
 from exo_has_sim.diagnosis.plants import WindowedModel, smooth
 from exo_has_sim.diagnosis.residuals import (
     Signature,
@@ -261,6 +261,9 @@ def diagnose(plant: WindowedModel, horizon: float = DEFAULT_HORIZON,
         if score.own_start and not score.significant and score.effect in limits:
             size = score.fit.values[plant.effect_parameters(score.effect)[0].name]
             limits[score.effect] = refused_at(limits[score.effect], size)
+    if 'transport_delay' in limits and isinstance(plant, HasPlant):
+        limits['transport_delay'] = traded_with_lag(limits['transport_delay'], extended,
+                                                    plant.params.motor_time_constant)
     for limit in limits.values():
         say(f'  {limit.sentence()}')
     _say_untried(budget, say)
