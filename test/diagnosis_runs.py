@@ -21,6 +21,7 @@ from typing import Any
 from rigs import rig_file
 
 from exo_has_runtime.tether import tie_to_parent
+from exo_has_sim.diagnosis.batch import single_threaded
 from exo_has_sim.diagnosis.cli import STRUCTURE_STATUS, main
 
 
@@ -40,34 +41,18 @@ def diagnose_csv(path: Path, joint_type: str, load_mass: float, out: Path) -> di
     return doc
 
 
-#: Set to 1 in the pool's processes: the integrator's threads (exo_has_sim.simulate.threads)
-#: and OpenBLAS's. With a process per core, more threads only contend: pairs of draws diagnosed
-#: side by side ended 14-19 % sooner on one thread each, for 15-18 % less CPU (2026-11-27, 2
-#: cores), with the same JSON documents to the bit.
-THREAD_VARIABLES = ('EXO_HAS_THREADS', 'OPENBLAS_NUM_THREADS')
-
-
 @contextmanager
 def diagnosis_pool() -> Iterator[Pool]:
-    """Give a pool of one process per core, each computing on one thread.
+    """Give a pool of one process per core, each computing on one thread (as a batch's).
 
     Spawned, not forked: the test process may hold rclpy's threads from earlier tests, and a
-    fork copies their locks mid-use. The processes take the variables at their start (OpenBLAS
-    reads its own as numpy loads it); this process's environment is left as it was.
+    fork copies their locks mid-use.
     """
-    saved = {name: os.environ.get(name) for name in THREAD_VARIABLES}
-    os.environ.update(dict.fromkeys(THREAD_VARIABLES, '1'))
-    try:
+    with single_threaded():
         # Tethered: a worker ends with the test run, even one killed by SIGKILL, rather than
         # diagnosing on for minutes.
         pool = multiprocessing.get_context('spawn').Pool(os.cpu_count() or 1, tie_to_parent,
                                                          (os.getpid(),))
-    finally:
-        for name, value in saved.items():
-            if value is None:
-                os.environ.pop(name, None)
-            else:
-                os.environ[name] = value
     with pool:
         yield pool
 
