@@ -10,6 +10,7 @@ over threads. A plant node advances its joints step by step with
 from __future__ import annotations
 
 import os
+import threading
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -27,6 +28,15 @@ from exo_has_sim.integrator import (
     open_loop,
 )
 from exo_has_sim.parameters import HasParameters
+
+#: Fewest joints worth a block of their own in :func:`integrate_packed`.
+BLOCK_JOINTS = 8
+#: Blocks per thread in :func:`integrate_packed`: joints' step counts differ several-fold
+#: (a spool that switches takes more), and a thread that drew the easy ones takes another.
+BLOCKS_PER_THREAD = 4
+_POOL_PREFIX = 'exo_has_integrate'
+_pool: tuple[int, int, ThreadPoolExecutor] | None = None  # (pid, threads, pool)
+_pool_lock = threading.Lock()
 
 
 @dataclass(frozen=True)
@@ -130,8 +140,9 @@ def integrate_packed(packed: np.ndarray, delay: np.ndarray, y0: np.ndarray,
 
     For callers that build many parameter sets at once (the diagnosis's candidates): no
     per-joint :class:`HasParameters` and no checks of the inputs' shapes. The joints are
-    independent, and the compiled loop releases the interpreter's lock, so they are shared
-    among :func:`threads` threads, each integrating a block of them.
+    independent, and the compiled loop releases the interpreter's lock, so blocks of them
+    (at least :data:`BLOCK_JOINTS` joints, up to :data:`BLOCKS_PER_THREAD` per thread) go to
+    a pool of :func:`threads` threads kept for the process.
 
     Parameters
     ----------
@@ -169,16 +180,34 @@ def integrate_packed(packed: np.ndarray, delay: np.ndarray, y0: np.ndarray,
                   tolerance, rtol, max_step, out)
         return out
 
-    count = min(threads(), max(joints // 8, 1))  # a few joints are not worth a thread
-    if count == 1:
+    count = threads()
+    blocks = min(count * BLOCKS_PER_THREAD, joints // BLOCK_JOINTS)
+    if count == 1 or blocks <= 1 or threading.current_thread().name.startswith(_POOL_PREFIX):
         states = block(0, joints)
     else:
-        edges = np.linspace(0, joints, count + 1).round().astype(int)
-        with ThreadPoolExecutor(count) as pool:
-            states = np.concatenate(list(pool.map(block, edges[:-1], edges[1:])), axis=1)
+        edges = np.linspace(0, joints, blocks + 1).round().astype(int)
+        states = np.concatenate(list(_thread_pool(count).map(block, edges[:-1], edges[1:])),
+                                axis=1)
     if not np.all(np.isfinite(states)):
         raise SimulationError('the simulation diverged (NaN or infinite state)')
     return states
+
+
+def _thread_pool(count: int) -> ThreadPoolExecutor:
+    """Return the process's pool of ``count`` integrating threads, made on first use.
+
+    Kept from call to call: a diagnosis integrates hundreds of times, and starting the
+    threads anew each time cost it 2 of 65 s. A forked child, which has none of its
+    parent's threads, and a changed count get a new pool.
+    """
+    global _pool
+    with _pool_lock:
+        if _pool is None or _pool[:2] != (os.getpid(), count):
+            if _pool is not None and _pool[0] == os.getpid():
+                _pool[2].shutdown(wait=False)
+            _pool = (os.getpid(), count,
+                     ThreadPoolExecutor(count, thread_name_prefix=_POOL_PREFIX))
+        return _pool[2]
 
 
 def simulate_closed_loop(params: Sequence[HasParameters], y0: np.ndarray, x_ref: np.ndarray,

@@ -67,6 +67,32 @@ def test_joints_are_independent_in_a_vectorised_run():
     np.testing.assert_allclose(both.states[:, 1], alone.states[:, 0], rtol=0, atol=0)
 
 
+def test_many_joints_integrate_alike_on_the_kept_thread_pool_and_on_one_thread(monkeypatch):
+    from concurrent.futures import ThreadPoolExecutor
+
+    from exo_has_sim import simulate
+
+    rng = np.random.default_rng(3)
+    joints = 40  # five blocks of eight: more blocks than threads
+    params = [HIP.replace(damping=d) for d in rng.uniform(500.0, 3000.0, joints)]
+    y0 = np.stack([model.initial_state(p, 0.05, 300.0) for p in params])
+    commands = rng.normal(0.0, 60.0, (60, joints))
+    loads = np.full((60, joints), 300.0)
+    monkeypatch.setenv('EXO_HAS_THREADS', '1')
+    alone = simulate_open_loop(params, y0, commands, loads, PERIOD).states
+    monkeypatch.setenv('EXO_HAS_THREADS', '2')
+    pooled = simulate_open_loop(params, y0, commands, loads, PERIOD).states
+    pool = simulate._thread_pool(2)
+    again = simulate_open_loop(params, y0, commands, loads, PERIOD).states
+    assert simulate._thread_pool(2) is pool  # kept, not made anew for each call
+    np.testing.assert_array_equal(pooled, alone)
+    np.testing.assert_array_equal(again, alone)
+    # A call from one of the pool's own threads integrates there rather than wait on the pool.
+    with ThreadPoolExecutor(1, thread_name_prefix=simulate._POOL_PREFIX) as inner:
+        nested = inner.submit(simulate_open_loop, params, y0, commands, loads, PERIOD)
+        np.testing.assert_array_equal(nested.result(timeout=60).states, alone)
+
+
 @pytest.mark.parametrize('delay', [0.0, 0.0123])
 def test_stepping_a_plant_matches_the_batch_simulation(delay):
     from exo_has_sim.plant_simulator import PlantSimulator
