@@ -63,13 +63,17 @@ def make_records(folder: Path) -> list[tuple[str, Path, bool]]:
     return out
 
 
-def diagnose(tree: Path, record: Path, params: Path, out: Path,
+def diagnose(tree: Path, record: Path, arguments: list[str], out: Path,
              budget: float | None) -> dict[str, Any]:
-    """Diagnose one record with a checkout's sources in a fresh process; what it gave."""
+    """Diagnose one record with a checkout's sources in a fresh process; what it gave.
+
+    ``arguments``: the options of ``exo-has diagnose`` that describe the record (``--params``,
+    ``--joint``, ...).
+    """
     env = dict(os.environ)
     env['PYTHONPATH'] = os.pathsep.join([*(str(tree / p) for p in PACKAGES),
                                          env.get('PYTHONPATH', '')])
-    command = [sys.executable, '-c', DIAGNOSE, str(record), '--params', str(params),
+    command = [sys.executable, '-c', DIAGNOSE, str(record), *arguments,
                '--json', str(out), '-q']
     if budget is not None:
         command += ['--time-budget', str(budget)]
@@ -101,12 +105,13 @@ def run(against: Path | None, budget: float | None) -> None:
         # The budget is this checkout's option; another may not know it.
         budgets = {name: budget if name == 'this' else None for name in trees}
         for name, tree in trees.items():  # numba compiles into each checkout's cache first
-            diagnose(tree, records[-2][1], params, folder / f'warm_{name}.json', budgets[name])
+            diagnose(tree, records[-2][1], ['--params', str(params)],
+                     folder / f'warm_{name}.json', budgets[name])
         results: dict[str, dict[str, Any]] = {}
         for label, path, logged in records:
             results[label] = {'logged': logged}
             for name, tree in trees.items():
-                results[label][name] = diagnose(tree, path, params,
+                results[label][name] = diagnose(tree, path, ['--params', str(params)],
                                                 folder / f'{path.stem}_{name}.json',
                                                 budgets[name])
                 print(f'{label} ({name}): {results[label][name]}', flush=True)
