@@ -2,8 +2,10 @@
 
 The records are short draws of the first truth plant (``truth_plant.py``): 6 s with 80 N of
 Coulomb friction, 4 s of two seeds without an effect, and the friction draw's CSV log cut
-short mid-row. Each is diagnosed as the hidden-effect tests do (the bench's parameters file,
-the load mass), in full (no time budget, whose searches would depend on the machine's speed).
+short mid-row; and a bag of the nodes' topics with the friction draw on one hip and an
+effect-free one on the other. Each is diagnosed as the hidden-effect tests do (the bench's
+parameters file, the load mass), in full (no time budget, whose searches would depend on the
+machine's speed).
 """
 
 from __future__ import annotations
@@ -113,6 +115,54 @@ def test_a_rerun_skips_what_is_done(local_run, records, capsys):
     assert code == ERROR_STATUS
     assert '3 records: 3 done before, none to diagnose' in capsys.readouterr().err
     assert {path.name: path.stat().st_mtime_ns for path in (out / 'records').iterdir()} == before
+
+
+def write_session_bag(path: Path, draws: dict[str, truth_plant.Draw]) -> Path:
+    """Write draws as a bag of the nodes' topics: a joint's states, its commands 1 ms later."""
+    from rclpy.serialization import serialize_message
+
+    from exo_has_common.bag import BagWriter
+    from exo_has_msgs.msg import HasCommand, HasState
+
+    t0 = 1_700_000_000_000_000_000
+    with BagWriter(path) as writer:
+        for joint in draws:
+            writer.add_topic(f'/{joint}/has_state', 'exo_has_msgs/msg/HasState')
+            writer.add_topic(f'/{joint}/has_command', 'exo_has_msgs/msg/HasCommand')
+        for joint, draw in draws.items():
+            c = draw.columns
+            for k, t in enumerate(c['time']):
+                stamp = t0 + round(t * 1e9)
+                state = HasState(joint=joint, position=c['position'][k],
+                                 pressure_a=c['pressure_a'][k], pressure_b=c['pressure_b'][k],
+                                 motor_speed=c['motor_speed'][k],
+                                 motor_speed_command=c['motor_speed_command'][k],
+                                 load_force=c['load_force'][k])
+                state.header.stamp.sec, state.header.stamp.nanosec = divmod(stamp, 10 ** 9)
+                writer.write(f'/{joint}/has_state', stamp, serialize_message(state))
+                command = HasCommand(joint=joint, motor_speed=c['motor_speed_command'][k],
+                                     enable=True)
+                answer = stamp + 1_000_000
+                command.header.stamp.sec, command.header.stamp.nanosec = divmod(answer, 10 ** 9)
+                writer.write(f'/{joint}/has_command', answer, serialize_message(command))
+    return path
+
+
+def test_joint_all_diagnoses_every_joint_a_bag_records_each_a_row_of_the_summary(tmp_path):
+    draws = {'left_hip': truth_plant.draw(4242, 'hip', effect='coulomb_friction', size=80.0,
+                                          excitation='sine_sum', duration=6.0),
+             'right_hip': truth_plant.draw(4242, 'hip', excitation='sine_sum', duration=4.0)}
+    bag = write_session_bag(tmp_path / 'session', draws)  # as the friction and quiet CSV logs
+    out = tmp_path / 'summary'
+    code = main([str(bag), '--joint', 'all', '--params', str(rig_file('hip')), '--load-mass',
+                 '50', '--workers', '2', '--summary', str(out)])
+    assert code == 0
+    rows = list(csv.DictReader((out / 'summary.csv').open()))
+    assert sorted((row['joint'], row['verdict'], row['cause']) for row in rows) == [
+        ('left_hip', 'effect', 'coulomb_friction'), ('right_hip', 'none', '')]
+    friction = next(row for row in rows if row['joint'] == 'left_hip')
+    assert 70.0 < float(friction['size']) < 90.0
+    assert '2 records: 1 effect, 1 none.' in (out / 'summary.md').read_text()
 
 
 def free_port() -> int:
