@@ -132,7 +132,9 @@ def test_a_closed_loop_transport_delay_is_applied_exactly_not_rounded_to_samples
         closed = simulate_closed_loop([params], y0, x_ref[:, None], v_ref[:, None], loads,
                                       gains, period)
         replay = simulate_open_loop([params], y0, closed.commands, loads, period)
-        np.testing.assert_allclose(closed.position, replay.position, atol=1e-9)
+        # The closed loop steps with ROS2, the open loop with ROS34PW2: they agree to their
+        # tolerances (0.16 mm here), where a delay rounded to a sample moves it by 3 mm.
+        np.testing.assert_allclose(closed.position, replay.position, atol=5e-4)
         results[delay] = closed.position[:, 0]
     # A sub-sample delay still changes the response (it was once rounded away).
     assert np.max(np.abs(results[0.0024] - results[0.0])) > 1e-4
