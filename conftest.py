@@ -12,8 +12,14 @@ import pytest
 from exo_has_runtime.dds import configure_transport
 
 # Before any participant exists: child processes inherit both, so a test run never meets the
-# nodes of another run (or of a demo) on this machine, nor anything on the network.
-os.environ['ROS_DOMAIN_ID'] = str(random.SystemRandom().randint(100, 200))
+# nodes of another run (or of a demo) on this machine, nor anything on the network. A
+# pytest-xdist worker (gw0, gw1, ...) inherits its run's domain and takes the next ones, so
+# that the workers of one run do not meet either.
+_worker = os.environ.get('PYTEST_XDIST_WORKER', '')
+if _worker.startswith('gw') and os.environ.get('ROS_DOMAIN_ID', '').isdigit():
+    os.environ['ROS_DOMAIN_ID'] = str(int(os.environ['ROS_DOMAIN_ID']) + 1 + int(_worker[2:]))
+else:
+    os.environ['ROS_DOMAIN_ID'] = str(random.SystemRandom().randint(100, 200))
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.pop('ROS_STATIC_PEERS', None)
 # The transport every exo_has process takes (UDP: exo_has_runtime.dds), here for the test process's
