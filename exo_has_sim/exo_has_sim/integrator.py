@@ -63,6 +63,10 @@ ROS_B = np.array([2.4212380706095346e-01, -1.2232505839045147e+00, 1.54526025533
                   4.3586652150845900e-01])
 ROS_B_HAT = np.array([3.7810903145819369e-01, -9.6042292212423178e-02, 5.0e-01,
                       2.1793326075422950e-01])
+#: A method as :func:`_advance` takes it (:func:`_method`).
+Method = tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, float, float]
+
+
 def transformed(alpha: np.ndarray, gamma: np.ndarray, b: np.ndarray,
                 b_hat: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Return a Rosenbrock method's coefficients in the variables ``u_i = sum_j gamma_ij k_j``.
@@ -91,10 +95,8 @@ def transformed(alpha: np.ndarray, gamma: np.ndarray, b: np.ndarray,
     return a, c, b @ inverse, (b - b_hat) @ inverse
 
 
-
-
 def _method(alpha: np.ndarray, gamma: np.ndarray, b: np.ndarray, b_hat: np.ndarray,
-            error_order: float, pi: bool) -> tuple:
+            error_order: float, pi: bool) -> Method:
     """Return a method as :func:`_advance` takes it.
 
     The tuple holds gamma, the :func:`transformed` a, c, m and e, and the exponents of the
@@ -182,7 +184,7 @@ _F, _YS, _YN, _U = range(4)
 
 
 @compiled(*_INLINED)
-def _trial(method: tuple, y: np.ndarray, h: float, n_cmd: float, f_load: float,
+def _trial(method: Method, y: np.ndarray, h: float, n_cmd: float, f_load: float,
            prm: np.ndarray, work: np.ndarray, jac: np.ndarray, pivots: np.ndarray,
            lu: np.ndarray, atol: np.ndarray, rtol: float, fresh: bool) -> float:
     """One step of ``method`` of length h from y into work[_YN]; return the scaled error estimate.
@@ -257,7 +259,7 @@ def _regime(y: np.ndarray, prm: np.ndarray) -> int:
 
 
 @compiled(*_INLINED)
-def _advance(method: tuple, y: np.ndarray, span: float, step: np.ndarray, n_cmd: float,
+def _advance(method: Method, y: np.ndarray, span: float, step: np.ndarray, n_cmd: float,
              f_load: float, prm: np.ndarray, work: np.ndarray, jac: np.ndarray,
              pivots: np.ndarray, lu: np.ndarray, atol: np.ndarray, rtol: float,
              max_step: float) -> int:
@@ -328,7 +330,7 @@ def _workspace(ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 
 @compiled(*_INLINED)
-def _advance_period(method: tuple, y: np.ndarray, commands: np.ndarray, joint: int, k: int,
+def _advance_period(method: Method, y: np.ndarray, commands: np.ndarray, joint: int, k: int,
                     lag: int, shift: float, initial: float, period: float, step: np.ndarray,
                     f_load: float, prm: np.ndarray, work: np.ndarray, jac: np.ndarray,
                     pivots: np.ndarray, lu: np.ndarray, atol: np.ndarray, rtol: float,

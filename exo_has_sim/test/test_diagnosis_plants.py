@@ -212,6 +212,39 @@ def test_coulomb_friction_in_mass_data_is_named_and_none_without_it():
     assert diagnose(MassPlant(mass_measurement(force, clean), mass=20.0)).cause == 'none'
 
 
+def test_an_effect_whose_joint_fit_cannot_start_is_scored_at_its_grid_point_and_not_named(
+        monkeypatch):
+    from exo_has_sim.diagnosis import selection
+    from exo_has_sim.errors import FitError
+
+    force = random_force(4000, 3)
+    rng = np.random.default_rng(4)
+    with_friction = simulate_mass(force, 12.0, 80.0, coulomb=15.0) + rng.normal(0.0, 2e-5, 4000)
+    plant = MassPlant(mass_measurement(force, with_friction), mass=20.0)
+    windows = make_windows(4000, 100, plant.first_start, 20)
+    weights = output_weights(plant)
+    reference = fit_parameters(plant, plant.baseline, {}, windows.estimation_span, weights)
+    validation = evaluate(plant, [reference.values], windows.validation_span, weights)[0]
+    ranked = selection.rank(plant, reference, validation, [], ['coulomb_friction'], windows,
+                            weights, every=True)
+    assert ranked[0].significant and not ranked[0].screened  # named when it can be fitted
+
+    fitted = selection.fit_parameters
+
+    def runaway(plant, free, *args, **kwargs):
+        # As a rig's record did: from either start, some window of the joint fit runs away.
+        if any(p.name == 'coulomb_friction' for p in free):
+            raise FitError('the starting point of the fit cannot be simulated: {}')
+        return fitted(plant, free, *args, **kwargs)
+
+    monkeypatch.setattr(selection, 'fit_parameters', runaway)
+    ranked = selection.rank(plant, reference, validation, [], ['coulomb_friction'], windows,
+                            weights, every=True)
+    assert [s.effect for s in ranked] == ['coulomb_friction']
+    assert ranked[0].screened and not ranked[0].significant
+    assert ranked[0].fit.values['coulomb_friction'] > 0.0  # the grid point's size
+
+
 def has_closed_loop(params, seconds=8.0, seed=0, load_frequency=0.15,
                     load_pressures=(2e6, 10e6)):
     """Noise-free closed-loop data of the project's own HAS model (sine sum, varying load).

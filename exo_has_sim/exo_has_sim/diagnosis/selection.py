@@ -314,10 +314,8 @@ def rank(plant: WindowedModel, reference: Fit, reference_validation: Evaluation,
     ranking = []
     # A screened effect is scored at its grid point, with the reference's values projected.
     for effect, validation in zip(rest, validations, strict=True):
-        added = plant.effect_parameters(effect)
-        fit = Fit(screened[effect][0], added, {}, screened[effect][1])
-        ranking.append(Score((*named, effect), fit, validation, reference_validation,
-                             len(added), screened=True))
+        ranking.append(_at_grid_point(plant, named, effect, screened[effect],
+                                      reference_validation, validation))
     for effect in joint:
         added = plant.effect_parameters(effect)
         if progress:
@@ -332,8 +330,18 @@ def rank(plant: WindowedModel, reference: Fit, reference_validation: Evaluation,
             # The first-order projection can move the reference's values where the plant
             # cannot be simulated (a soft oil and a fast motor): start from them unmoved,
             # at the size screening chose, which it did simulate.
-            fit = fit_parameters(plant, free, {}, windows.estimation_span, weights,
-                                 initial=reference.values | sizes, **budget)
+            try:
+                fit = fit_parameters(plant, free, {}, windows.estimation_span, weights,
+                                     initial=reference.values | sizes, **budget)
+            except FitError:
+                # Neither start simulates all windows (a 9 kN brake on an oil fitted soft ran
+                # away from a rig's record): no joint fit, the grid point's score, which
+                # cannot be named. The record still gets its verdict.
+                validation = evaluate(plant, [screened[effect][0]], windows.validation_span,
+                                      weights)[0]
+                ranking.append(_at_grid_point(plant, named, effect, screened[effect],
+                                              reference_validation, validation))
+                continue
         validation = evaluate(plant, [fit.values], windows.validation_span, weights)[0]
         score = Score((*named, effect), fit, validation, reference_validation, len(added))
         if (every or effect == order[0]) and strayed \
@@ -342,9 +350,12 @@ def rank(plant: WindowedModel, reference: Fit, reference_validation: Evaluation,
             # there the joint fit can stall in their valley (a bulk modulus pinned high by a
             # dead zone), so the likeliest effect's fit also starts from the nominal values,
             # and the better one wins.
-            again = fit_parameters(plant, free, {}, windows.estimation_span, weights,
-                                   initial=reference.values | plant.nominal() | sizes,
-                                   **budget)
+            try:
+                again = fit_parameters(plant, free, {}, windows.estimation_span, weights,
+                                       initial=reference.values | plant.nominal() | sizes,
+                                       **budget)
+            except FitError:  # the nominal start runs away: the first fit stands
+                again = fit
             if again.cost < fit.cost:
                 validation = evaluate(plant, [again.values], windows.validation_span,
                                       weights)[0]
@@ -359,6 +370,15 @@ def rank(plant: WindowedModel, reference: Fit, reference_validation: Evaluation,
                      f'x{score.ratio:.3f} score {score.score:+7.1f} p {score.p_value:.1e} '
                      f'size {score.fit.values[size]:.4g}')
     return ranking
+
+
+def _at_grid_point(plant: WindowedModel, named: Sequence[str], effect: str,
+                   point: tuple[dict[str, float], float], reference_validation: Evaluation,
+                   validation: Evaluation) -> Score:
+    """Score an effect at its best grid point (``point``: values, cost): not to be named."""
+    added = plant.effect_parameters(effect)
+    return Score((*named, effect), Fit(point[0], added, {}, point[1]), validation,
+                 reference_validation, len(added), screened=True)
 
 
 def rivals(ranking: Sequence[Score]) -> list[str]:
