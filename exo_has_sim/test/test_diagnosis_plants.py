@@ -193,11 +193,15 @@ def test_the_fit_of_a_mass_recovers_its_parameters_within_their_intervals():
     assert validation.fit(0) > 99.0
 
 
-def test_coulomb_friction_in_mass_data_is_named_and_none_without_it():
+def friction_record(coulomb=15.0):
+    """Return the force and the noisy position of a 12 kg mass with ``coulomb`` [N] of friction."""
     force = random_force(4000, 3)
-    rng = np.random.default_rng(4)
-    noise = rng.normal(0.0, 2e-5, 4000)
-    with_friction = simulate_mass(force, 12.0, 80.0, coulomb=15.0) + noise
+    noise = np.random.default_rng(4).normal(0.0, 2e-5, 4000)
+    return force, simulate_mass(force, 12.0, 80.0, coulomb=coulomb) + noise
+
+
+def test_coulomb_friction_in_mass_data_is_named_and_none_without_it():
+    force, with_friction = friction_record()
     result = diagnose(MassPlant(mass_measurement(force, with_friction), mass=20.0))
     assert result.causes == ('coulomb_friction',)
     low, high = result.extended.interval['coulomb_friction']
@@ -208,7 +212,7 @@ def test_coulomb_friction_in_mass_data_is_named_and_none_without_it():
     assert abs(15.0 - centre) < 2.0 * half
     assert_allclose(result.sizes()['coulomb_friction'], 15.0, rtol=0.1)
     assert result.fits()['extended']['position'] > result.fits()['baseline']['position']
-    clean = simulate_mass(force, 12.0, 80.0) + noise
+    _, clean = friction_record(coulomb=0.0)
     assert diagnose(MassPlant(mass_measurement(force, clean), mass=20.0)).cause == 'none'
 
 
@@ -217,10 +221,7 @@ def test_an_effect_whose_joint_fit_cannot_start_is_scored_at_its_grid_point_and_
     from exo_has_sim.diagnosis import selection
     from exo_has_sim.errors import FitError
 
-    force = random_force(4000, 3)
-    rng = np.random.default_rng(4)
-    with_friction = simulate_mass(force, 12.0, 80.0, coulomb=15.0) + rng.normal(0.0, 2e-5, 4000)
-    plant = MassPlant(mass_measurement(force, with_friction), mass=20.0)
+    plant = MassPlant(mass_measurement(*friction_record()), mass=20.0)
     windows = make_windows(4000, 100, plant.first_start, 20)
     weights = output_weights(plant)
     reference = fit_parameters(plant, plant.baseline, {}, windows.estimation_span, weights)

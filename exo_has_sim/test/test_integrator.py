@@ -4,6 +4,7 @@ import math
 
 import numpy as np
 import pytest
+from test_model import every_valve_mode
 
 from exo_has_sim import integrator, model
 from exo_has_sim.diagnosis.has_plant import HAS_ATOL, HAS_RTOL
@@ -95,12 +96,8 @@ def test_the_open_loop_converges_at_third_order_on_the_speed_loop():
 
 
 def test_at_the_diagnosis_tolerances_the_open_loop_follows_radau_through_every_valve_mode():
-    params = HIP.with_effects(quadratic_leakage=1e-21, entrained_air=0.005)
+    params, commands, loads, y0 = every_valve_mode()
     period = 0.005
-    commands = np.concatenate([np.full(200, 300.0), np.full(100, -200.0), np.zeros(200),
-                               np.full(200, HIP.motor_speed_max)])
-    loads = np.concatenate([np.full(300, LOAD), np.zeros(200), np.full(200, LOAD)])
-    y0 = model.initial_state(params, 0.05, LOAD)
     fast = integrate_packed(model.pack(params)[None, :], np.zeros(1), y0[None, :],
                             commands[:, None], loads[:, None], period, rtol=HAS_RTOL,
                             atol=HAS_ATOL)[:, 0]

@@ -66,14 +66,22 @@ def balance_error(states, params):
     return abs(pumped - accounted) / total
 
 
-def test_the_mass_balance_closes_over_a_run_through_every_valve_mode():
+def every_valve_mode():
+    """Return a hip's parameters, commands, loads and start of a run through every valve mode.
+
+    The load is taken off while the motor stands, so the pressure goes and the valve frees; at
+    the motor's top speed under load the relief valve opens.
+    """
     params = HIP.with_effects(quadratic_leakage=1e-21, entrained_air=0.005)
-    period = 0.005
     commands = np.concatenate([np.full(200, 300.0), np.full(100, -200.0), np.zeros(200),
                                np.full(200, HIP.motor_speed_max)])
-    # The load is taken off while the motor stands, so the pressure goes and the valve frees.
     loads = np.concatenate([np.full(300, LOAD), np.zeros(200), np.full(200, LOAD)])
-    y0 = model.initial_state(params, 0.05, LOAD)
+    return params, commands, loads, model.initial_state(params, 0.05, LOAD)
+
+
+def test_the_mass_balance_closes_over_a_run_through_every_valve_mode():
+    params, commands, loads, y0 = every_valve_mode()
+    period = 0.005
     fast = simulate_open_loop([params], y0[None, :], commands[:, None], loads, period)
     modes = {model.valve_mode(s, model.pack(params)) for s in fast.states[:, 0]}
     assert modes == {model.VALVE_FREE, model.VALVE_ASSIST, model.VALVE_RELIEF}
