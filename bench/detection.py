@@ -105,6 +105,9 @@ FIRST_FRESH_SEED = 110000
 #: The fresh draw of the transport delay's limit alone (its twins only), fixed before it ran:
 #: the first fresh draw stated a delay limit in 4 of 14 records, too few to judge 80 %.
 FIRST_DELAY_FRESH_SEED = 120000
+#: The fresh draw of entrained air's limit alone, fixed before it ran: with the open loop on
+#: ROS34PW2 the first fresh draw's hip held it in 3 of 5 records.
+FIRST_AIR_FRESH_SEED = 130000
 #: Parameters files the truth plants draw around and the diagnoses are given (--files): the
 #: bench's (test/rigs.py) or the shipped hip and knee (exo_has_sim/config).
 FILES: dict[str, Path | None] = {'bench': None, 'shipped': SHIPPED_DIR}
@@ -757,7 +760,7 @@ def main() -> None:
     parser.add_argument('--first-seed', type=int,
                         help=f'with --file-limits: the first seed (default {FIRST_FILE_LIMIT_SEED}'
                         f"; the fresh draw: {FIRST_FRESH_SEED}; the delay's own: "
-                        f'{FIRST_DELAY_FRESH_SEED})')
+                        f"{FIRST_DELAY_FRESH_SEED}; entrained air's: {FIRST_AIR_FRESH_SEED})")
     parser.add_argument('--factors', type=float, nargs='+', default=[1.0, 2.0],
                         help='with --file-limits: sizes of the twins, as multiples of the limit')
     parser.add_argument('--duration', type=float, default=DURATION,
