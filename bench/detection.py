@@ -108,6 +108,9 @@ FIRST_DELAY_FRESH_SEED = 120000
 #: The fresh draw of entrained air's limit alone, fixed before it ran: with the open loop on
 #: ROS34PW2 the first fresh draw's hip held it in 3 of 5 records.
 FIRST_AIR_FRESH_SEED = 130000
+#: The fresh draw of entrained air's limit with the margin decided on the draw above (three
+#: ladder steps), fixed before it ran.
+FIRST_AIR_CHECK_SEED = 140000
 #: Parameters files the truth plants draw around and the diagnoses are given (--files): the
 #: bench's (test/rigs.py) or the shipped hip and knee (exo_has_sim/config).
 FILES: dict[str, Path | None] = {'bench': None, 'shipped': SHIPPED_DIR}
