@@ -57,10 +57,10 @@ HAS_RTOL = 1e-3
 #: [rad/s^2], p_B [Pa]), ten times tighter than :mod:`exo_has_sim.integrator`'s defaults,
 #: which suit a plant node but not a comparison with data at a sensor's resolution: where the
 #: motor speed passes zero, the spool dips towards free mode and ``(1 - s) G_free p`` drains
-#: the chamber at a rate that a spool error of 1e-3 changes by 60 MPa/s. ROS34PW2 on 80 of the diagnosis's integrations, worst
-#: sample against a run 1000 times tighter (bench/integrator.py): ten times looser 178 um and
-#: 0.95 MPa off, at these 41 um and 0.36 MPa for 1.5 times the steps (candidates that cavitate
-#: and ring in an end stop; a typical window is within a few um, under the sensors' noise).
+#: the chamber at a rate that a spool error of 1e-3 changes by 60 MPa/s. ROS34PW2 on 80 of the
+#: diagnosis's integrations, worst sample against a run 1000 times tighter (bench/integrator.py):
+#: ten times looser 178 um and 0.95 MPa off, at these 41 um and 0.36 MPa for 1.5 times the steps
+#: (candidates that cavitate and ring in an end stop; a typical window is within a few um).
 HAS_ATOL = np.array([1e-7, 1e-5, 1e3, 1e-3, 1e-5, 1e-10, 10.0, 1e3])
 #: Motor speed and spool histories kept (one per delay and time constant a fit tried).
 DRIVE_CACHE = 32
