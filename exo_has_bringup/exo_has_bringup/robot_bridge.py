@@ -158,8 +158,10 @@ class RobotBridge(LifecycleNode):
         # The loop commands the joints and this node publishes their states: any other
         # publisher of either (a controller, a plant, a driver left running) is a fault the
         # loop holds (the watchdog's and the driver's rule).
-        self._commanders = PublisherWatch(self, [has_command_topic(j) for j in JOINT_NAMES])
-        self._state_sources = PublisherWatch(self, [has_state_topic(j) for j in JOINT_NAMES])
+        self._commanders = PublisherWatch(self, [has_command_topic(j) for j in JOINT_NAMES],
+                                          source=True)
+        self._state_sources = PublisherWatch(self, [has_state_topic(j) for j in JOINT_NAMES],
+                                             source=True)
         self._joint_of_topic = {
             topic: joint for watch in (self._commanders, self._state_sources)
             for topic, joint in zip(watch.topics, JOINT_NAMES, strict=True)}

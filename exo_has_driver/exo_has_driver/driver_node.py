@@ -205,7 +205,8 @@ class Driver(Node):
         # publisher of the states this driver publishes: a fault the master latches and holds.
         self._stop_sources = tuple(stop_sources)
         self._commanders = PublisherWatch(self, [has_command_topic(j) for j in self._joints])
-        self._state_sources = PublisherWatch(self, [has_state_topic(j) for j in self._joints])
+        self._state_sources = PublisherWatch(self, [has_state_topic(j) for j in self._joints],
+                                             source=True)
         self._joint_of_topic = {
             topic: joint for watch in (self._commanders, self._state_sources)
             for topic, joint in zip(watch.topics, self._joints, strict=True)}

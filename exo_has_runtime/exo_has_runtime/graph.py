@@ -92,13 +92,20 @@ class PublisherWatch:
         Topics to watch (relative names are resolved as the node resolves them).
     ignore : Collection[str]
         Full names of other nodes whose publishers are left out (``/watchdog``).
+    source : bool
+        Whether the node is itself the topics' one source (the driver of the states it
+        publishes): then an unnamed publisher alone stands beside it and is held back too.
+        Reported at once, a stray commander came out as "an unnamed node" where its name
+        followed a moment later.
 
     """
 
-    def __init__(self, node: Node, topics: Sequence[str], ignore: Collection[str] = ()) -> None:
+    def __init__(self, node: Node, topics: Sequence[str], ignore: Collection[str] = (),
+                 source: bool = False) -> None:
         self._node = node
         self.topics = tuple(node.resolve_topic_name(topic) for topic in topics)
         self._ignore = {node.get_fully_qualified_name(), *ignore}
+        self._beside = 0 if source else 1  # other publishers that a second one stands beside
         self._unnamed_since: dict[str, float] = {}
 
     def poll(self, now_s: float) -> dict[str, list[str]]:
@@ -116,7 +123,7 @@ class PublisherWatch:
                      for info in self._node.get_publishers_info_by_topic(topic)]
             named = [(name, unknown) for name, unknown in named if name not in self._ignore]
             names = [name for name, _ in named]
-            if len(names) > 1 and any(unknown for _, unknown in named):
+            if len(names) > self._beside and any(unknown for _, unknown in named):
                 since = self._unnamed_since.setdefault(topic, now_s)
                 if now_s - since < UNNAMED_WAIT_S:
                     continue
