@@ -763,7 +763,8 @@ def main() -> None:
     parser.add_argument('--first-seed', type=int,
                         help=f'with --file-limits: the first seed (default {FIRST_FILE_LIMIT_SEED}'
                         f"; the fresh draw: {FIRST_FRESH_SEED}; the delay's own: "
-                        f"{FIRST_DELAY_FRESH_SEED}; entrained air's: {FIRST_AIR_FRESH_SEED})")
+                        f"{FIRST_DELAY_FRESH_SEED}; entrained air's: {FIRST_AIR_FRESH_SEED}, "
+                        f'and at three steps {FIRST_AIR_CHECK_SEED})')
     parser.add_argument('--factors', type=float, nargs='+', default=[1.0, 2.0],
                         help='with --file-limits: sizes of the twins, as multiples of the limit')
     parser.add_argument('--duration', type=float, default=DURATION,
