@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import os
 import random
+import signal
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -32,6 +34,48 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         if item.get_closest_marker('process') is None and item.get_closest_marker('slow') is None:
             item.add_marker(pytest.mark.unit)
+
+
+@pytest.fixture(autouse=True, scope='module')
+def no_process_left_behind(request: pytest.FixtureRequest) -> Iterator[None]:
+    """Fail a module whose tests leave a process of theirs running, and end those processes.
+
+    A process a failed test left running (started outside a ``with``) went on publishing into
+    the next modules' graphs, and they failed with it ("a second source of the joint's state").
+    Checked when the module's fixtures have ended; multiprocessing's own helper is not a test's.
+    """
+    yield
+    left = {pid: command for pid, command in _children().items()
+            if 'multiprocessing.resource_tracker' not in command}
+    for pid in left:
+        try:
+            os.killpg(pid, signal.SIGKILL)  # its own session: NodeProcess, Processes
+        except OSError:
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except OSError:
+                pass
+    if left:
+        pytest.fail(f'{request.module.__name__} left {len(left)} process(es) running, now '
+                    f'killed: ' + '; '.join(f'{pid}: {cmd[:200]}' for pid, cmd in left.items()))
+
+
+def _children() -> dict[int, str]:
+    """Return the live (not zombie) child processes of this one: pid to command line."""
+    me, found = os.getpid(), {}
+    for folder in Path('/proc').iterdir():
+        if not folder.name.isdigit():
+            continue
+        try:
+            stat = (folder / 'stat').read_text()
+            command = (folder / 'cmdline').read_bytes().replace(b'\0', b' ').decode(
+                errors='replace')
+        except OSError:
+            continue  # ended meanwhile
+        state, parent = stat.rsplit(')', 1)[1].split()[:2]
+        if int(parent) == me and state != 'Z':
+            found[int(folder.name)] = command.strip()
+    return found
 
 
 @pytest.fixture
@@ -63,34 +107,21 @@ def virtual_hosts_available() -> None:
         pytest.skip(str(exc))
 
 
-#: The acceptance modules of the diagnosis that queue their diagnoses in one pool, in the order
-#: they queue them: the longest diagnoses first (a position-only record of the third plant,
-#: the position-only dead zone and relief valve), the first plant's short draws last.
-DIAGNOSIS_MODULES = ('test_third_truth_plant_diagnosis', 'test_hidden_effects_position_only',
-                     'test_detection_limits', 'test_hidden_effects')
-
-
-@pytest.fixture(scope='session')
+@pytest.fixture(scope='module')
 def diagnoses(request: pytest.FixtureRequest,
-              tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    """Run the diagnoses of the acceptance modules collected in one pool; each module's by name.
+              tmp_path_factory: pytest.TempPathFactory) -> Any:
+    """Run the diagnoses an acceptance module queues in a pool of a process per core.
 
-    Each module queues its own (``queue_diagnoses(pool, folder)``, giving its
-    ``diagnosis_runs.Queued``). With a pool per module, one core idled while the other ended
-    each module's last diagnosis, and test_detection_limits.py diagnosed its first record
-    alone before its pool started; here both run beside the other modules' diagnoses. All have
-    ended on return, before any process test starts.
+    The module queues its own (``queue_diagnoses(pool, folder)``), and gets its
+    ``diagnosis_runs.Queued`` with every diagnosis ended. ``./run test`` runs these modules on
+    pytest-xdist workers beside the quick tests (``--dist loadfile``: a module's tests on one
+    worker, so its pool is made once), which take a core wherever a module's last diagnoses
+    leave one idle.
     """
     from diagnosis_runs import diagnosis_pool  # test/ is on the path once its modules are
 
-    modules = {item.module.__name__: item.module for item in request.session.items
-               if hasattr(getattr(item, 'module', None), 'queue_diagnoses')}
-    order = sorted(modules, key=lambda name: DIAGNOSIS_MODULES.index(name)
-                   if name in DIAGNOSIS_MODULES else len(DIAGNOSIS_MODULES))
-    queued = {}
+    module = request.module
     with diagnosis_pool() as pool:
-        for name in order:
-            queued[name] = modules[name].queue_diagnoses(pool, tmp_path_factory.mktemp(name))
-        for each in queued.values():
-            each.wait()
+        queued = module.queue_diagnoses(pool, tmp_path_factory.mktemp(module.__name__))
+        queued.wait()
     return queued

@@ -60,7 +60,7 @@ def queue_diagnoses(pool, folder):
 
 
 def test_an_effect_twice_the_stated_limit_is_named_and_one_under_half_of_it_is_not(diagnoses):
-    queued = diagnoses[__name__]
+    queued = diagnoses
     limits = queued['none'].get()['detection_limits']
     assert not limits[UNSTATED]['stated'] and limits[UNSTATED]['limit'] is None
     for effect in EFFECTS:

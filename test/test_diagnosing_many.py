@@ -36,7 +36,7 @@ from exo_has_sim.diagnosis.batch import (
 from exo_has_sim.diagnosis.cli import main
 from exo_has_sim.diagnosis.records import Options, find_records
 
-pytestmark = pytest.mark.process
+pytestmark = pytest.mark.slow  # worker processes and a Dask cluster: long, no node timed
 
 #: How each record is diagnosed (the hidden-effect tests' way).
 OPTIONS = ['--joint', 'hip', '--params', str(rig_file('hip')), '--load-mass', '50']

@@ -82,7 +82,7 @@ def queue_diagnoses(pool, folder):
 
 @pytest.fixture(scope='module')
 def results(diagnoses):
-    rows = diagnoses[__name__]['draws'].get()
+    rows = diagnoses['draws'].get()
     print_table(rows)
     return rows
 
@@ -176,7 +176,7 @@ def _size_name(effect):
 
 @pytest.mark.slow
 def test_two_effects_at_once_are_both_found_named_or_reported_beside_their_rival(diagnoses):
-    effects, doc = diagnoses[__name__]['two'].get()
+    effects, doc = diagnoses['two'].get()
     # The delay ties with a second-order motor loop in these data (issue 12): a verdict may
     # take the loop and report the delay beside it as indistinguishable, but never drop it.
     assert doc['causes'][0] == 'coulomb_friction'

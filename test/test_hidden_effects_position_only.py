@@ -84,7 +84,7 @@ def queue_diagnoses(pool, folder):
 
 @pytest.fixture(scope='module')
 def results(diagnoses):
-    rows = diagnoses[__name__]['draws'].get()
+    rows = diagnoses['draws'].get()
     for row in rows:
         print(f'{row["seed"]} {row["effect"]:<18} named {row["doc"]["causes"]} '
               f'{row["doc"]["sizes"]}')

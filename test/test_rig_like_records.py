@@ -72,7 +72,7 @@ def queue_diagnoses(pool, folder):
 
 @pytest.fixture(scope='module')
 def found(diagnoses):
-    return diagnoses[__name__]['records'].get()
+    return diagnoses['records'].get()
 
 
 def test_the_records_move_over_a_small_part_of_the_stroke(found):

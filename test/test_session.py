@@ -227,10 +227,10 @@ def test_replaying_the_bag_reproduces_its_messages(session, tmp_path):
     with NodeProcess('exo_has_runtime.recorder', [
             '--ros-args', '-r', '__node:=replay_recorder', '-p', f'output:={copy}',
             '-p', f"topics:=['{topic}_replayed']"]) as recorder:
-        replay = NodeProcess('exo_has_runtime.replay', [
-            str(trimmed), '--rate', '1', '--wait-for-subscribers',
-            '--ros-args', '-r', f'{topic}:={topic}_replayed'])
-        assert replay.wait(timeout_s=30) == 0, replay.output
+        with NodeProcess('exo_has_runtime.replay', [
+                str(trimmed), '--rate', '1', '--wait-for-subscribers',
+                '--ros-args', '-r', f'{topic}:={topic}_replayed']) as replay:
+            assert replay.wait(timeout_s=30) == 0, replay.output
         time.sleep(0.3)
         recorder.stop()
     with read_messages(copy) as messages:

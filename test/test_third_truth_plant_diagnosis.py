@@ -87,12 +87,12 @@ def queue_diagnoses(pool, folder):
 
 @pytest.fixture(scope='module')
 def diagnoses_folder(diagnoses):
-    return diagnoses[__name__].folder
+    return diagnoses.folder
 
 
 @pytest.fixture(scope='module')
 def done(diagnoses):
-    return diagnoses[__name__]['draws'].get()
+    return diagnoses['draws'].get()
 
 
 @pytest.fixture(scope='module')

@@ -9,6 +9,7 @@ listens to the states, the safety events and ``/diagnostics``.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import tempfile
 from collections.abc import Iterator
@@ -50,7 +51,9 @@ def test_the_robot_side_takes_gains_holds_through_a_killed_bridge_and_stops_on_a
         graph: Graph) -> None:
     group = random_multicast_group()
     bus = ['--interface', 'udp_multicast', '--channel', group]
+    # The bridges end with the test however it ends (the second replaces the killed first).
     with tempfile.TemporaryDirectory(prefix='exo-bridge-') as directory, \
+            contextlib.ExitStack() as bridges, \
             NodeProcess('exo_has_driver.devices.main', [
                 *bus, '--realtime-priority', f'{devices_priority(REALTIME_PRIORITY)}']) as devices:
         devices.wait_for_output('can devices ready', START_S)
@@ -61,7 +64,7 @@ def test_the_robot_side_takes_gains_holds_through_a_killed_bridge_and_stops_on_a
             loop.wait_for_output('robot loop ready', START_S)
             args = ['--ros-args', '-p', f'socket_dir:={directory}', '-p', f'rate:={RATE}',
                     '-p', 'diagnostics_period:=0.2']
-            bridge = NodeProcess('exo_has_bringup.robot_bridge', args)
+            bridge = bridges.enter_context(NodeProcess('exo_has_bringup.robot_bridge', args))
             bridge.wait_for_output('robot bridge ready', START_S)
             assert graph.run(DISCOVERY_S, lambda: all(graph.states.values())), bridge.output
             graph.start_walking()
@@ -87,7 +90,7 @@ def test_the_robot_side_takes_gains_holds_through_a_killed_bridge_and_stops_on_a
                 states.clear()
             graph.statuses.clear()
             events_before = len(graph.events)
-            bridge = NodeProcess('exo_has_bringup.robot_bridge', args)
+            bridge = bridges.enter_context(NodeProcess('exo_has_bringup.robot_bridge', args))
             bridge.wait_for_output('robot bridge ready', START_S)
 
             # The new bridge shows every joint held where it was, and says why.

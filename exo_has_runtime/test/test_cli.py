@@ -40,9 +40,9 @@ def test_help_lists_the_subcommands(capsys):
 def test_the_demonstration_nodes_exchange_commands_and_states_for_every_joint():
     with NodeProcess('exo_has_runtime.examples.state_echo'):
         time.sleep(1.0)  # let the echo subscribe first
-        talker = NodeProcess('exo_has_runtime.examples.command_talker',
-                             ['--ros-args', '-p', 'duration:=2.5'])
-        assert talker.wait(timeout_s=60) == 0, talker.output
+        with NodeProcess('exo_has_runtime.examples.command_talker',
+                         ['--ros-args', '-p', 'duration:=2.5']) as talker:
+            assert talker.wait(timeout_s=60) == 0, talker.output
     output = talker.output
     reports = [line for line in output.splitlines() if 'states received' in line]
     assert reports, output
