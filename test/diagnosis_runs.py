@@ -58,7 +58,7 @@ def diagnosis_pool() -> Iterator[Pool]:
 
 
 class Queued(dict[str, AsyncResult[Any]]):
-    """A module's diagnoses queued in the test run's pool (conftest.py): async results by name.
+    """A module's diagnoses queued in its pool (conftest.py): async results by name.
 
     ``folder`` holds their files. A diagnosis queued on another's result is added meanwhile.
     """

@@ -41,7 +41,7 @@ def twins(limits, folder):
 
 
 def queue_diagnoses(pool, folder):
-    """Queue the effect-free draw in the run's pool (conftest.py), its twins on its result."""
+    """Queue the effect-free draw in its pool (conftest.py), its twins on its result."""
     queued = Queued(folder)
 
     def queue_twins(doc):

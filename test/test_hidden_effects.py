@@ -68,7 +68,7 @@ def run_two_effects(folder):
 
 
 def queue_diagnoses(pool, folder):
-    """Queue the record with two effects and the draws in the run's pool (conftest.py).
+    """Queue the record with two effects and the draws in its pool (conftest.py).
 
     Each test takes its own result, and fails on its own where that raised.
     """

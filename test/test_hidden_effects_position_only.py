@@ -77,7 +77,7 @@ def run_draw(task):
 
 
 def queue_diagnoses(pool, folder):
-    """Queue the draws in the run's pool (conftest.py)."""
+    """Queue the draws in its pool (conftest.py)."""
     tasks = [(plant.__name__, seed, effect, folder) for plant, seed, effect in DRAWS]
     return Queued(folder, draws=pool.map_async(run_draw, tasks, chunksize=1))
 

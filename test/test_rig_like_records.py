@@ -65,7 +65,7 @@ def record(task):
 
 
 def queue_diagnoses(pool, folder):
-    """Queue the records in the run's pool (conftest.py)."""
+    """Queue the records in its pool (conftest.py)."""
     return Queued(folder, records=pool.map_async(
         record, [(each, str(folder)) for each in third_rig.RIG_LIKE], chunksize=1))
 

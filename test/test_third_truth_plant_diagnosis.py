@@ -77,7 +77,7 @@ def diagnose_draw(task):
 
 
 def queue_diagnoses(pool, folder):
-    """Queue the draws of both descriptions in the run's pool (conftest.py)."""
+    """Queue the draws of both descriptions in its pool (conftest.py)."""
     tasks = [(seed, effect, columns, 'paper', str(folder))
              for seed, effect, columns in PAPER_CIRCUIT_DRAWS]
     tasks += [(seed, effect, columns, 'switched', str(folder))
