@@ -6,12 +6,12 @@ import os
 import random
 import signal
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import pytest
 
 from exo_has_runtime.dds import configure_transport
+from exo_has_runtime.processes import children
 
 # Before any participant exists: child processes inherit both, so a test run never meets the
 # nodes of another run (or of a demo) on this machine, nor anything on the network. A
@@ -45,7 +45,7 @@ def no_process_left_behind(request: pytest.FixtureRequest) -> Iterator[None]:
     Checked when the module's fixtures have ended; multiprocessing's own helper is not a test's.
     """
     yield
-    left = {pid: command for pid, command in _children().items()
+    left = {pid: command for pid, command in children().items()
             if 'multiprocessing.resource_tracker' not in command}
     for pid in left:
         try:
@@ -58,24 +58,6 @@ def no_process_left_behind(request: pytest.FixtureRequest) -> Iterator[None]:
     if left:
         pytest.fail(f'{request.module.__name__} left {len(left)} process(es) running, now '
                     f'killed: ' + '; '.join(f'{pid}: {cmd[:200]}' for pid, cmd in left.items()))
-
-
-def _children() -> dict[int, str]:
-    """Return the live (not zombie) child processes of this one: pid to command line."""
-    me, found = os.getpid(), {}
-    for folder in Path('/proc').iterdir():
-        if not folder.name.isdigit():
-            continue
-        try:
-            stat = (folder / 'stat').read_text()
-            command = (folder / 'cmdline').read_bytes().replace(b'\0', b' ').decode(
-                errors='replace')
-        except OSError:
-            continue  # ended meanwhile
-        state, parent = stat.rsplit(')', 1)[1].split()[:2]
-        if int(parent) == me and state != 'Z':
-            found[int(folder.name)] = command.strip()
-    return found
 
 
 @pytest.fixture

@@ -21,6 +21,8 @@ from pathlib import Path
 
 import pytest
 
+from exo_has_runtime.processes import children, stat_fields
+
 pytestmark = pytest.mark.process
 
 BENCH = Path(__file__).resolve().parents[1] / 'bench'
@@ -30,21 +32,6 @@ MARK = 'EXO_HAS_BENCH_CLEANUP_TEST'
 
 #: The flag of a kernel thread in /proc/PID/stat (``PF_KTHREAD``): it has no environment.
 KERNEL_THREAD = 0x00200000
-
-
-def stat_fields(pid: int) -> list[str]:
-    """Return the fields of /proc/PID/stat after the name: state, parent, ..., flags at 6."""
-    return Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
-
-
-def children() -> set[int]:
-    """Return this process's children, ended but not reaped (zombies) among them."""
-    found = set()
-    for entry in Path('/proc').glob('[0-9]*'):
-        with contextlib.suppress(OSError):  # ended meanwhile
-            if int(stat_fields(int(entry.name))[1]) == os.getpid():
-                found.add(int(entry.name))
-    return found
 
 
 def environment(pid: int) -> list[bytes]:
@@ -85,10 +72,10 @@ def left_behind(monkeypatch: pytest.MonkeyPatch) -> Iterator[Callable[[], set[in
     """
     token = uuid.uuid4().hex
     monkeypatch.setenv(MARK, token)
-    before = children()
+    before = set(children(zombies=True))
 
     def remaining() -> set[int]:
-        return marked(token) | (children() - before)
+        return marked(token) | (set(children(zombies=True)) - before)
 
     yield remaining
     for pid in remaining():

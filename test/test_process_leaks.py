@@ -12,6 +12,8 @@ from pathlib import Path
 
 import pytest
 
+from exo_has_runtime.processes import alive
+
 pytest_plugins = ['pytester']
 pytestmark = pytest.mark.process  # the inner run starts a process
 
@@ -32,15 +34,6 @@ def test_that_starts_nothing():
 """
 
 
-def running(pid: int) -> bool:
-    """Whether a process exists and is not a zombie."""
-    try:
-        state = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()[0]
-    except (FileNotFoundError, ProcessLookupError):
-        return False
-    return state != 'Z'
-
-
 def test_a_module_that_leaves_a_process_running_fails_naming_it_and_the_process_is_ended(
         pytester: pytest.Pytester) -> None:
     pytester.makeconftest((WORKSPACE / 'conftest.py').read_text())
@@ -50,7 +43,7 @@ def test_a_module_that_leaves_a_process_running_fails_naming_it_and_the_process_
     result.stdout.fnmatch_lines(['*test_leaky left 1 process(es) running, now killed: '
                                  '*sleep 300*'])
     pid = int((pytester.path / 'leaked.pid').read_text())
-    assert not running(pid)
+    assert not alive(pid)
 
 
 def test_a_module_that_ends_what_it_starts_passes(pytester: pytest.Pytester) -> None:

@@ -32,7 +32,7 @@ from exo_has_bringup.runner import ORPHAN_BOUND, STOP_BOUND, Session
 from exo_has_common.bag import bag_summary
 from exo_has_common.joints import JOINT_NAMES
 from exo_has_msgs.msg import SafetyEvent
-from exo_has_runtime.processes import NodeProcess, tethered
+from exo_has_runtime.processes import NodeProcess, alive, tethered
 
 pytestmark = pytest.mark.process  # every test here starts processes
 
@@ -72,15 +72,6 @@ def wait_for_line(path: Path, pattern: str, process: subprocess.Popen,
             break
         time.sleep(0.1)
     pytest.fail(f'no {pattern!r} in the demo output:\n{path.read_text(errors="replace")}')
-
-
-def alive(pid: int) -> bool:
-    """Whether a process exists and is not a zombie."""
-    try:
-        state = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()[0]
-    except (FileNotFoundError, ProcessLookupError):
-        return False
-    return state != 'Z'
 
 
 @pytest.mark.parametrize('signum', [signal.SIGINT, signal.SIGTERM, signal.SIGKILL],

@@ -248,3 +248,39 @@ def signal_group(process: subprocess.Popen[Any], number: int) -> None:
     # Until it is reaped, its id is its group's and no other process's.
     with contextlib.suppress(ProcessLookupError):
         os.killpg(process.pid, number)
+
+
+def stat_fields(pid: int) -> list[str]:
+    """Return the fields of ``/proc/<pid>/stat`` after the name: state, parent, ..., flags at 6.
+
+    Raises
+    ------
+    OSError
+        If there is no such process.
+
+    """
+    return Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+
+
+def alive(pid: int) -> bool:
+    """Whether a process exists and has not ended (a zombie, ended but not reaped, has)."""
+    try:
+        return stat_fields(pid)[0] != 'Z'
+    except OSError:
+        return False
+
+
+def children(parent: int | None = None, zombies: bool = False) -> dict[int, str]:
+    """Return the children of ``parent`` (default this process): pid to command line.
+
+    Those that ended but were not reaped (zombies) only with ``zombies``.
+    """
+    parent = os.getpid() if parent is None else parent
+    found = {}
+    for entry in Path('/proc').glob('[0-9]*'):
+        with contextlib.suppress(OSError, IndexError):  # ended meanwhile
+            fields = stat_fields(int(entry.name))
+            if int(fields[1]) == parent and (zombies or fields[0] != 'Z'):
+                command = (entry / 'cmdline').read_bytes().replace(b'\0', b' ')
+                found[int(entry.name)] = command.decode(errors='replace').strip()
+    return found

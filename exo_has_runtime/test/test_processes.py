@@ -6,11 +6,10 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import pytest
 
-from exo_has_runtime.processes import NodeProcess, Processes
+from exo_has_runtime.processes import NodeProcess, Processes, alive
 
 pytestmark = pytest.mark.process  # every test here starts processes
 
@@ -77,17 +76,9 @@ def test_processes_that_ignore_sigterm_are_killed_with_their_group_after_the_gra
     # The child, in the group and ignoring SIGTERM as well (inherited), got the SIGKILL too:
     # gone once reaped by whoever adopted it, a zombie until then, dying a moment before.
     deadline = time.monotonic() + 5.0
-    while state(child) not in ('Z', 'gone') and time.monotonic() < deadline:
+    while alive(child) and time.monotonic() < deadline:
         time.sleep(0.01)
-    assert state(child) in ('Z', 'gone')
-
-
-def state(pid: int) -> str:
-    """Return a process's state letter (``Z``: ended, not reaped), or ``gone``."""
-    try:
-        return Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()[0]
-    except OSError:
-        return 'gone'
+    assert not alive(child)
 
 
 def test_a_run_that_fails_its_check_or_overruns_its_timeout_says_so() -> None:
