@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import random
 import signal
@@ -51,10 +52,8 @@ def no_process_left_behind(request: pytest.FixtureRequest) -> Iterator[None]:
         try:
             os.killpg(pid, signal.SIGKILL)  # its own session: NodeProcess, Processes
         except OSError:
-            try:
+            with contextlib.suppress(OSError):  # ended meanwhile
                 os.kill(pid, signal.SIGKILL)
-            except OSError:
-                pass
     if left:
         pytest.fail(f'{request.module.__name__} left {len(left)} process(es) running, now '
                     f'killed: ' + '; '.join(f'{pid}: {cmd[:200]}' for pid, cmd in left.items()))

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from exo_has_runtime.processes import Processes
+from exo_has_runtime.processes import Processes, stat_fields
 
 if TYPE_CHECKING:  # the scripts choose the backend before they import the session
     from exo_has_bringup.runner import Session
@@ -95,7 +95,7 @@ RESULTS = Path(__file__).resolve().parent / 'results'
 
 def cpu_seconds(pid: int) -> float:
     """User plus system CPU time of a process [s]."""
-    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    fields = stat_fields(pid)
     return (int(fields[11]) + int(fields[12])) / TICK
 
 

@@ -25,7 +25,7 @@ import pytest
 import truth_plant
 from rigs import rig_file
 
-from exo_has_runtime.processes import Processes
+from exo_has_runtime.processes import Processes, alive, children
 from exo_has_sim.diagnosis.batch import (
     ERROR_STATUS,
     INTERRUPTED_STATUS,
@@ -210,24 +210,8 @@ def test_a_dask_scheduler_with_two_worker_processes_gives_the_same_verdicts_and_
 
 def worker_processes(parent: int) -> list[int]:
     """Return the pids of a process's children that are multiprocessing's spawned workers."""
-    pids = []
-    for stat in Path('/proc').glob('[0-9]*/stat'):
-        try:
-            fields = stat.read_text().rpartition(')')[2].split()
-            command = (stat.parent / 'cmdline').read_bytes()
-        except OSError:
-            continue  # ended meanwhile
-        if int(fields[1]) == parent and b'spawn_main' in command:
-            pids.append(int(stat.parent.name))
-    return pids
-
-
-def running(pid: int) -> bool:
-    """Whether a process runs (neither ended nor a zombie)."""
-    try:
-        return Path(f'/proc/{pid}/stat').read_text().rpartition(')')[2].split()[0] != 'Z'
-    except OSError:
-        return False
+    return [pid for pid, command in children(parent, zombies=True).items()
+            if 'spawn_main' in command]
 
 
 class KillAWorker(ProgressBar):
@@ -299,4 +283,4 @@ def test_ctrl_c_leaves_a_summary_of_what_finished(records, tmp_path):
     assert rows['friction.csv']['verdict'] == 'unfinished'
     assert rows['friction.csv']['error'] == 'the batch was interrupted first'
     assert 'interrupted' in (out / 'summary.md').read_text() and 'interrupted' in stdout
-    assert len(workers) == 1 and not running(workers[0])  # the batch ended its worker
+    assert len(workers) == 1 and not alive(workers[0])  # the batch ended its worker
