@@ -31,7 +31,9 @@ Out, every period of ``rate``: what the loop sent since the last, each sample as
 ``<joint>/has_state`` (stamped with its hardware receive time), each event on ``safety_events``
 (``SAFETY_EVENT_QOS``, stamped when the loop raised it), and every ``diagnostics_period`` the
 loop's timing on ``/diagnostics`` (status ``robot_loop``: periods, missed, lateness, longest gap
-between bus commands, datagrams dropped; STALE while the loop is silent).
+between bus commands, datagrams dropped, each since the loop started; STALE while the loop is
+silent). The level judges the window since the previous status, as diagnostic_updater's
+frequency status does: WARN for periods missed in it, OK again in the next window without any.
 """
 
 from __future__ import annotations
@@ -147,6 +149,9 @@ class RobotBridge(LifecycleNode):
         self._metrics_received = -math.inf  # monotonic time [s] of the newest metrics
         self._loop_mode: LoopMode | None = None  # the loop's newest report of its state
         self._mode_received = -math.inf  # monotonic time [s] of that report
+        # The loop's metrics when the previous status was judged; None: no status judged yet,
+        # so the window is the loop's whole run.
+        self._judged: Metrics | None = None
         self._request = 0
         self._failure = ''  # why the last transition failed
         self.create_subscription(JointState, JOINT_REFERENCE_TOPIC, self._on_reference,
@@ -358,8 +363,8 @@ class RobotBridge(LifecycleNode):
         elif metrics.holding:
             level, text = DiagnosticStatus.WARN, 'holding: the reference was lost; every ' \
                 'joint holds until a reset'
-        elif metrics.missed:
-            level, text = DiagnosticStatus.WARN, f'running; {metrics.missed} periods missed'
+        elif missed := self._missed_since_previous(metrics):
+            level, text = DiagnosticStatus.WARN, f'running; {missed}'
         else:
             level, text = DiagnosticStatus.OK, 'running'
         mode = 'unknown' if self._loop_mode is None else self._loop_mode.name.lower()
@@ -377,6 +382,19 @@ class RobotBridge(LifecycleNode):
                   ('problem', metrics.problem))
         return DiagnosticStatus(level=level, name=DIAGNOSTIC_NAME, message=text,
                                 values=[KeyValue(key=k, value=v) for k, v in values])
+
+    def _missed_since_previous(self, metrics: Metrics) -> str:
+        """Say how many periods the loop missed since the previous status; empty if none."""
+        before = self._judged
+        if before is not None and metrics.periods < before.periods:
+            before = None  # the loop restarted: its counts start again
+        self._judged = metrics
+        missed = metrics.missed - (0 if before is None else before.missed)
+        if not missed:
+            return ''
+        window = 'since the loop started' if before is None else \
+            f'in the last {metrics.t - before.t:.1f} s'
+        return f'{missed} periods missed {window} ({metrics.missed} in all)'
 
     def _on_set_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
         """Judge a change of gains at the loop's rate; send it where safe, refuse it otherwise."""

@@ -11,7 +11,10 @@ from __future__ import annotations
 
 import contextlib
 import math
+import os
+import signal
 import tempfile
+import time
 from collections.abc import Iterator
 
 import pytest
@@ -38,6 +41,14 @@ START_S = 30.0  # fresh interpreters import numpy, scipy and rclpy on a loaded m
 #: had, held still after its timeout, is within the swing's rate times the stale time of where
 #: the joint stood, and the hold keeps the joint within the tracking error of it.
 HELD = SWING * 2.0 * math.pi * SWING_HZ * STALE_PERIODS / RATE + FOLLOWING
+#: How long the test stops the loop [s]: a few periods missed, far from the loop's limit of 9
+#: in a row (a FATAL stop) even if this process wakes 15 ms late.
+STALL_S = 0.03
+
+
+def described(status: DiagnosticStatus) -> str:
+    """Return a status's message and values: the loop's timing when a test fails on it."""
+    return f'{status.message}: ' + ', '.join(f'{v.key} {v.value}' for v in status.values)
 
 
 @pytest.fixture
@@ -113,7 +124,18 @@ def test_the_robot_side_takes_gains_holds_through_a_killed_bridge_and_stops_on_a
             assert graph.run(10.0, graph.following), \
                 graph.errors_deg()
             assert graph.run(3.0, lambda: graph.statuses[-1].level == DiagnosticStatus.OK), \
-                graph.statuses[-1].message
+                described(graph.statuses[-1])
+
+            # A stall of the loop shows in the status of its window, and only there.
+            os.kill(loop.process.pid, signal.SIGSTOP)
+            time.sleep(STALL_S)
+            os.kill(loop.process.pid, signal.SIGCONT)
+            assert graph.run(2.0, lambda: 'periods missed in the last'
+                             in graph.statuses[-1].message), described(graph.statuses[-1])
+            assert graph.statuses[-1].level == DiagnosticStatus.WARN
+            assert graph.run(3.0, lambda: graph.statuses[-1].level == DiagnosticStatus.OK), \
+                described(graph.statuses[-1])
+            assert graph.following(), graph.errors_deg()
 
             # A stray commander of a joint (a controller left running) stops every joint
             # until it is gone and a reset comes.
