@@ -32,7 +32,7 @@ setup(
     tests_require=['pytest'],
     entry_points={
         'console_scripts': [
-            'plant = exo_has_sim.plant_node:main',
+            'plant = exo_has_sim.plant_command:main',
             # The diagnosis where no ROS workspace gives `exo-has diagnose`.
             'exo-has-diagnose = exo_has_sim.diagnosis.cli:main',
         ],

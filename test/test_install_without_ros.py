@@ -88,6 +88,12 @@ def test_one_pip_command_installs_the_diagnosis_without_ros_and_it_diagnoses_a_c
         assert installed.returncode == 0, installed.stdout[-3000:]
         ros = run(processes, [python, '-c', 'import rclpy'], tmp_path, 60)
         assert 'ModuleNotFoundError' in ros.stdout
+        # The plant node's command came too: one line saying what it needs, no traceback.
+        plant = run(processes, [str(venv / 'bin' / 'plant')], tmp_path, 60)
+        assert plant.returncode == 2, plant.stdout
+        assert plant.stdout.startswith('plant: the plant node needs ROS 2 Jazzy, and rclpy is '
+                                       'not installed here'), plant.stdout
+        assert 'Traceback' not in plant.stdout
         out = tmp_path / 'diagnosis.json'
         diagnosed = run(processes, [str(venv / 'bin' / 'exo-has-diagnose'), str(log), '--joint',
                                     'hip', '--params', str(rig_file('hip')), '--load-mass',
