@@ -46,10 +46,6 @@ from exo_has_runtime.processes import NodeProcess
 #: Time allowed for a node to report ready [s]; a plant's first start compiles the model.
 READY_TIMEOUT = 120.0
 
-#: Pause after each stage of nodes came up [s]: their first matches with the running nodes
-#: settle before the next stage starts (and the watchdog starts judging).
-SETTLE_TIME = 1.0
-
 #: Longest time from SIGINT, SIGTERM or SIGHUP of a session's runner to the end of its last
 #: node [s] (each stops in well under a second; tests/test_session_ownership.py times it).
 STOP_BOUND = 10.0
@@ -180,9 +176,11 @@ class Session:
                         spec.module, spec.arguments, env=env,
                         log_path=self.logs / f'{spec.name}.log', stdin=spec.stdin, netns=netns)
                     show(f'started {spec.name} (pid {self.processes[spec.name].process.pid})')
+                # A stage starts once the one before reported ready, with no pause for
+                # discovery: what needs its peers waits for them itself (the watchdog's
+                # start-up grace, the gait publisher's readers, the recorder's topics below).
                 for spec in group if stage > 0 else ():
                     self.processes[spec.name].wait_for_output(spec.ready, READY_TIMEOUT)
-                time.sleep(SETTLE_TIME)
             for recorder in ('recorder', 'robot_recorder'):
                 if recorder in self.processes:
                     # At least the session's own topics (load topics come when someone
