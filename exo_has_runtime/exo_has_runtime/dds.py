@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import hashlib
 import ipaddress
+import math
 import os
 import socket
 import tempfile
@@ -176,14 +177,27 @@ def static_peers(text: str) -> list[str]:
     return addresses
 
 
-def localhost_profile(peers: Sequence[str] = ()) -> str:
+def localhost_profile(peers: Sequence[str] = (),
+                      announcement_period: float | None = None) -> str:
     """Return a Fast DDS XML profile: LOCALHOST discovery over UDP alone.
 
     What rmw_fastrtps_cpp sets for LOCALHOST, less its shared-memory transport: no built-in
     transports, one UDPv4 transport trying :data:`MAX_INITIAL_PEERS_RANGE` participants per
     host, a unicast metatraffic locator (so no multicast one), and 127.0.0.1 with ``peers`` as
-    the initial peers.
+    the initial peers. ``announcement_period`` [s]: how often a participant announces itself;
+    None keeps Fast DDS's 3 s, which the processes take. A join whose first exchange with a
+    participant fails (8 of 24 on the test VM) waits for that participant's next announcement:
+    0.5 s bounded those joins at 0.5 s where 3 s let them take 2.7 s (``bench/discovery.py``),
+    but the sessions' nodes stalled over 20 ms more often with it (``bench/stalls.py``; both
+    in bench/README.md, "Discovery").
     """
+    announcing = ''
+    if announcement_period is not None:
+        seconds = math.floor(announcement_period)
+        nanoseconds = round((announcement_period - seconds) * 1e9)
+        announcing = ('        <discovery_config><leaseAnnouncement>'
+                      f'<sec>{seconds}</sec><nanosec>{nanoseconds}</nanosec>'
+                      '</leaseAnnouncement></discovery_config>\n')
     locators = ''.join(
         f'<locator><udpv4><address>{escape(address)}</address></udpv4></locator>'
         for address in ('127.0.0.1', *peers))
@@ -204,6 +218,7 @@ def localhost_profile(peers: Sequence[str] = ()) -> str:
         '      <useBuiltinTransports>false</useBuiltinTransports>\n'
         '      <userTransports><transport_id>exo_has_udp</transport_id></userTransports>\n'
         '      <builtin>\n'
+        f'{announcing}'
         '        <metatrafficUnicastLocatorList><locator/></metatrafficUnicastLocatorList>\n'
         f'        <initialPeersList>{locators}</initialPeersList>\n'
         '      </builtin>\n'

@@ -67,6 +67,8 @@ def test_localhost_becomes_a_udp_profile_that_finds_peers_on_this_machine_and_st
     root = ET.parse(path).getroot()
     assert root.find('.//p:useBuiltinTransports', NAMESPACE).text == 'false'
     assert root.find('.//p:transport_descriptor/p:type', NAMESPACE).text == 'UDPv4'
+    # Fast DDS's own announcement period: a shorter one cost the nodes stalls (bench/stalls.py).
+    assert root.find('.//p:builtin/p:discovery_config', NAMESPACE) is None
 
 
 def test_the_deprecated_localhost_only_is_taken_as_localhost_and_dropped():
@@ -196,3 +198,13 @@ def test_nodes_on_udp_find_each_other_under_localhost(tmp_path: Path):
         assert peer.output.count('"topic"') == 20, peer.output
         assert talker.process.poll() is None
     assert os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'SYSTEM_DEFAULT'
+
+
+def test_a_profile_asked_for_another_announcement_period_carries_it_in_seconds_and_ns():
+    root = ET.fromstring(localhost_profile(announcement_period=0.5))
+    announcement = root.find('.//p:builtin/p:discovery_config/p:leaseAnnouncement', NAMESPACE)
+    assert (announcement.find('p:sec', NAMESPACE).text,
+            announcement.find('p:nanosec', NAMESPACE).text) == ('0', '500000000')
+    root = ET.fromstring(localhost_profile(announcement_period=3.0))
+    announcement = root.find('.//p:builtin/p:discovery_config/p:leaseAnnouncement', NAMESPACE)
+    assert announcement.find('p:sec', NAMESPACE).text == '3'
