@@ -355,6 +355,8 @@ class RobotBridge(LifecycleNode):
                 f'no metrics from the robot loop for {silent:.1f} s'
             return DiagnosticStatus(level=DiagnosticStatus.STALE, name=DIAGNOSTIC_NAME,
                                     message=heard)
+        # Every status with metrics ends a window, whichever level it reports.
+        missed = self._missed_since_previous(metrics)
         if self._loop_mode is not LoopMode.ACTIVE:
             mode = 'unknown' if self._loop_mode is None else self._loop_mode.name.lower()
             level, text = DiagnosticStatus.WARN, f'{mode}: the loop follows no reference'
@@ -363,7 +365,7 @@ class RobotBridge(LifecycleNode):
         elif metrics.holding:
             level, text = DiagnosticStatus.WARN, 'holding: the reference was lost; every ' \
                 'joint holds until a reset'
-        elif missed := self._missed_since_previous(metrics):
+        elif missed:
             level, text = DiagnosticStatus.WARN, f'running; {missed}'
         else:
             level, text = DiagnosticStatus.OK, 'running'
