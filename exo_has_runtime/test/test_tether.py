@@ -17,11 +17,17 @@ from exo_has_runtime.tether import EXEC_EXIT, ORPHANED_EXIT
 
 pytestmark = pytest.mark.process  # every test here starts processes
 
+# The child writes each file under another name and renames it: the test, which waits for the
+# file to exist, never reads one created but not yet written (CI once read '' for 'SIGTERM').
 CHILD = """
 import pathlib, signal, sys, time
+def publish(path, text):
+    partial = path.with_name(path.name + '.partial')
+    partial.write_text(text)
+    partial.replace(path)
 out = pathlib.Path(sys.argv[1])
-signal.signal(signal.SIGTERM, lambda *_: (out.write_text('SIGTERM'), sys.exit(0)))
-out.with_suffix('.started').write_text(' '.join(sys.argv[2:]))
+signal.signal(signal.SIGTERM, lambda *_: (publish(out, 'SIGTERM'), sys.exit(0)))
+publish(out.with_suffix('.started'), ' '.join(sys.argv[2:]))
 time.sleep(60)
 """
 
