@@ -100,15 +100,15 @@ class GaitPublisher(Node):
         if now.nanoseconds < self._start_ns:
             return
         t = (now.nanoseconds - self._start_ns) * 1e-9
-        angles, rates, moments = self._table.sample(t)
+        sample = self._table.sample(t)
         self._log_progress(t)
         stamp = now.to_msg()
-        message = JointState(name=list(JOINTS), position=angles, velocity=rates)
+        message = JointState(name=list(JOINTS), position=sample.angles, velocity=sample.rates)
         message.header.stamp = stamp
         self._publisher.publish(message)
-        motion, phase, amplitude = self._schedule.phase_at(t)
-        gait_phase = GaitPhase(motion=MOTIONS[motion], phase=phase, amplitude=amplitude,
-                               joints=list(JOINTS), moment_per_mass=moments)
+        gait_phase = GaitPhase(motion=MOTIONS[sample.motion], phase=sample.phase,
+                               amplitude=sample.amplitude, joints=list(JOINTS),
+                               moment_per_mass=sample.moments)
         gait_phase.header.stamp = stamp
         self._phase_publisher.publish(gait_phase)
 

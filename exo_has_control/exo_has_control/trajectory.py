@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -122,14 +123,42 @@ def joint_angles(plan: TrialPlan, gait: GaitCycle, t: FloatArray,
     return np.tile(stand, 2) + weight * motion
 
 
+def walking_moments(gait: GaitCycle, phase: FloatArray, amplitude: FloatArray) -> FloatArray:
+    """Return walking's extensor moments per kilogram of carried mass [N m/kg], four joints.
+
+    The gait table's moments at the left leg's phase (cycles) and half a cycle behind it for
+    the right leg, times the trial's envelope ``amplitude`` (0 to 1).
+
+    Returns
+    -------
+    FloatArray
+        Shape (len(phase), 4), in the order of :data:`JOINTS`.
+
+    """
+    phase = np.atleast_1d(np.asarray(phase, dtype=float))
+    left = np.column_stack(gait.moments_at(phase))
+    right = np.column_stack(gait.moments_at(phase + 0.5))
+    return np.atleast_1d(np.asarray(amplitude, dtype=float))[:, None] * np.hstack([left, right])
+
+
+def squatting_moments(angles: FloatArray) -> FloatArray:
+    """Return squatting's extensor moments per kilogram of carried mass [N m/kg], four joints.
+
+    The quasi-static squat's (:func:`exo_has_sim.loads.squat_moments`) at the left leg's
+    posture in ``angles`` (shape (n, 4) [rad], order of :data:`JOINTS`), both legs alike.
+    """
+    angles = np.atleast_2d(np.asarray(angles, dtype=float))
+    hip, knee = squat_moments(angles[:, 0], angles[:, 1], 1.0)
+    return np.column_stack([hip, knee, hip, knee])
+
+
 def joint_moments(plan: TrialPlan, gait: GaitCycle, t: FloatArray,
                   standing: FloatArray | None = None) -> FloatArray:
     """Return the extensor moments per kilogram of carried mass [N m/kg] of the four joints.
 
-    Walking: the gait table's moments at each leg's phase, times the trial's envelope;
-    squatting: the quasi-static squat's (:func:`exo_has_sim.loads.squat_moments`) at the
-    reference's posture, which the envelope already shapes. Either ramps in and out with the
-    motion. Standing: zero.
+    Walking: :func:`walking_moments` at each time's phase and envelope; squatting:
+    :func:`squatting_moments` at the reference's posture, which the envelope already shapes.
+    Either ramps in and out with the motion. Standing: zero.
 
     Returns
     -------
@@ -139,14 +168,9 @@ def joint_moments(plan: TrialPlan, gait: GaitCycle, t: FloatArray,
     """
     times = np.asarray(t, dtype=float)
     if plan.motion == 'walk':
-        phase = times * plan.stride_frequency
-        left = np.column_stack(gait.moments_at(phase))
-        right = np.column_stack(gait.moments_at(phase + 0.5))
-        return envelope(plan, times)[:, None] * np.hstack([left, right])
+        return walking_moments(gait, times * plan.stride_frequency, envelope(plan, times))
     if plan.motion == 'squat':
-        angles = joint_angles(plan, gait, times, standing)
-        hip, knee = squat_moments(angles[:, 0], angles[:, 1], 1.0)
-        return np.column_stack([hip, knee, hip, knee])
+        return squatting_moments(joint_angles(plan, gait, times, standing))
     return np.zeros((len(times), 4))
 
 
@@ -241,11 +265,42 @@ class Schedule:
         return angles, rates
 
 
+class ReferenceSample(NamedTuple):
+    """What the gait publisher sends at one instant, each list in the order of :data:`JOINTS`.
+
+    Attributes
+    ----------
+    angles, rates : list of float
+        Reference angles [rad] and angular velocities [rad/s].
+    motion : str
+        ``'walk'``, ``'squat'`` or ``'stand'``.
+    phase : float
+        Cycle fraction in [0, 1) (:meth:`Schedule.phase_at`).
+    amplitude : float
+        The trial's envelope, 0 to 1.
+    moments : list of float
+        Extensor moments per kilogram of carried mass [N m/kg] at ``phase`` and ``amplitude``
+        walking, at the posture of ``angles`` squatting.
+
+    """
+
+    angles: list[float]
+    rates: list[float]
+    motion: str
+    phase: float
+    amplitude: float
+    moments: list[float]
+
+
 class ReferenceTable:
     """A schedule's references sampled ahead, one block at a time, for a real-time publisher.
 
     Evaluating the splines for every sample costs about half a millisecond; a block of one
-    second at ``step`` is evaluated at once, and samples in between are interpolated linearly.
+    second at ``step`` is evaluated at once, and angles and angular velocities in between are
+    interpolated linearly. The moments are not: the gait table's moment curves have corners
+    (heel strike) where an interpolated moment misses the one at the sample's phase by up to
+    3.4e-3 N m/kg on a 1 ms grid; each sample's moments are evaluated at its own phase and
+    posture (a few microseconds).
 
     Parameters
     ----------
@@ -267,25 +322,26 @@ class ReferenceTable:
         self._block = -1
         self._angles = np.zeros((0, 4))
         self._rates = np.zeros((0, 4))
-        self._moments = np.zeros((0, 4))
 
-    def sample(self, t: float) -> tuple[list[float], list[float], list[float]]:
-        """Angles [rad], angular velocities [rad/s] and moments per kg of carried mass [N m/kg].
-
-        Each of the four joints at t [s] (:meth:`Schedule.moments`).
-        """
+    def sample(self, t: float) -> ReferenceSample:
+        """Return the references, the phase and the moments of the four joints at t [s]."""
         index = t / self.step
         block = int(index // self._per_block)
         if block != self._block:
             grid = (block * self._per_block + np.arange(self._per_block + 1.0)) * self.step
             self._angles, self._rates = self.schedule.references(self.gait, grid)
-            self._moments = self.schedule.moments(self.gait, grid)
             self._block = block
         local = index - block * self._per_block
         k = min(int(local), self._per_block - 1)
         w = local - k
         angles = (1.0 - w) * self._angles[k] + w * self._angles[k + 1]
         rates = (1.0 - w) * self._rates[k] + w * self._rates[k + 1]
-        moments = (1.0 - w) * self._moments[k] + w * self._moments[k + 1]
-        return ([float(a) for a in angles], [float(r) for r in rates],
-                [float(m) for m in moments])
+        motion, phase, amplitude = self.schedule.phase_at(t)
+        if motion == 'walk':
+            moments = walking_moments(self.gait, np.array([phase]), np.array([amplitude]))[0]
+        elif motion == 'squat':
+            moments = squatting_moments(angles[None, :])[0]
+        else:
+            moments = np.zeros(4)
+        return ReferenceSample([float(a) for a in angles], [float(r) for r in rates], motion,
+                               phase, amplitude, [float(m) for m in moments])
