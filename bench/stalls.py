@@ -16,7 +16,8 @@ GIL, a blocking call in DDS). The watchers also sample the machine's steal time.
 
 ``--gc-freeze on off`` runs the sessions with and without the nodes' freezing of their
 start-up objects (``EXO_HAS_GC_FREEZE``, :func:`exo_has_runtime.execution.freeze_startup_objects`),
-taking turns.
+taking turns; ``--announcement-periods 3 0.5`` with each period of the participants'
+announcements [s] (:func:`exo_has_runtime.dds.localhost_profile`), taking turns likewise.
 
 Run (in ``./run shell``, as root): ``python bench/stalls.py --sessions 5``.
 """
@@ -41,6 +42,7 @@ from common import write_results
 from exo_has_bringup.analysis import read_session
 from exo_has_bringup.plan import SessionConfig
 from exo_has_bringup.runner import Session
+from exo_has_runtime.dds import localhost_profile, write_profile
 from exo_has_runtime.processes import Processes
 
 WATCH_PRIORITY = 60  # SCHED_FIFO: above the plants' real-time priority option (50)
@@ -93,12 +95,23 @@ def _overlaps(start: float, length: float, gaps: list[list[float]], slack: float
 
 
 def run(folder: Path, gap_s: float, durations: tuple[float, float],
-        gc_freeze: str = 'on') -> dict[str, object]:
-    """One walking and squatting session with the two watchers; its stalls, classified."""
+        gc_freeze: str = 'on', announcement_period: float | None = None) -> dict[str, object]:
+    """One walking and squatting session with the two watchers; its stalls, classified.
+
+    ``announcement_period`` [s]: the nodes on the LOCALHOST profile announcing so often (None:
+    the environment's discovery settings as they are).
+    """
     config = SessionConfig(('walk', 'squat'), durations, 200.0)
-    session = Session(config, folder, env={'EXO_HAS_GC_FREEZE': '1' if gc_freeze == 'on' else '0'})
+    env = {'EXO_HAS_GC_FREEZE': '1' if gc_freeze == 'on' else '0'}
+    if announcement_period is not None:
+        profile = write_profile(localhost_profile(announcement_period=announcement_period))
+        env |= {'FASTRTPS_DEFAULT_PROFILES_FILE': str(profile),
+                'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SYSTEM_DEFAULT'}
+    session = Session(config, folder, env=env)
+    started = time.monotonic()
     with Processes() as processes:
         session.start(show=lambda line: None)
+        bring_up = time.monotonic() - started
         try:
             assert session.started_at is not None
             span = session.started_at - time.monotonic() + sum(durations) + 1.0
@@ -123,7 +136,30 @@ def run(folder: Path, gap_s: float, durations: tuple[float, float],
             cause = 'process'
         stalls.append({'stream': name, 'start': start, 'length_s': round(length, 3),
                        'cause': cause})
-    return {'gc_freeze': gc_freeze, 'stalls': stalls, 'watchers': seen}
+    return {'gc_freeze': gc_freeze, 'announcement_period_s': announcement_period,
+            'bring_up_s': round(bring_up, 3), 'stalls': stalls,
+            'events': stall_events(stalls), 'watchers': seen}
+
+
+def stall_events(stalls: list[dict[str, object]]) -> list[dict[str, object]]:
+    """Merge the stream stalls that overlap in time into events (one process stalls many streams).
+
+    Each event: its start, length [s] and the worst cause among its streams' (machine over
+    contention over process).
+    """
+    events: list[dict[str, object]] = []
+    rank = {'machine': 2, 'contention': 1, 'process': 0}
+    for stall in sorted(stalls, key=lambda s: float(s['start'])):
+        start, length = float(stall['start']), float(stall['length_s'])
+        if events and start <= float(events[-1]['start']) + float(events[-1]['length_s']):
+            last = events[-1]
+            end = max(float(last['start']) + float(last['length_s']), start + length)
+            last['length_s'] = round(end - float(last['start']), 3)
+            if rank[str(stall['cause'])] > rank[str(last['cause'])]:
+                last['cause'] = stall['cause']
+        else:
+            events.append({'start': start, 'length_s': length, 'cause': stall['cause']})
+    return events
 
 
 def main() -> None:
@@ -135,6 +171,9 @@ def main() -> None:
                         metavar=('WALK', 'SQUAT'), help='trial lengths [s]')
     parser.add_argument('--gc-freeze', nargs='+', choices=('on', 'off'), default=['on'],
                         help='nodes freeze their start-up objects (EXO_HAS_GC_FREEZE), in turn')
+    parser.add_argument('--announcement-periods', type=float, nargs='+', default=[None],
+                        metavar='S', help="the participants' announcement period [s], in turn "
+                        "(default: the environment's settings)")
     parser.add_argument('--results', default='stalls', help='results file name')
     parser.add_argument('--watch', choices=('fifo', 'normal'), help=argparse.SUPPRESS)
     parser.add_argument('--duration', type=float, help=argparse.SUPPRESS)
@@ -148,14 +187,18 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as folder:
         for index in range(args.sessions):
             for freeze in args.gc_freeze:
-                sessions.append(run(Path(folder) / f's{index}{freeze}', args.gap,
-                                    tuple(args.durations), freeze))
+                for k, period in enumerate(args.announcement_periods):
+                    sessions.append(run(Path(folder) / f's{index}{freeze}{k}', args.gap,
+                                        tuple(args.durations), freeze, period))
     lines = [f'{args.sessions} sessions, walk {args.durations[0]:g} s + squat '
              f'{args.durations[1]:g} s at 200 Hz; a stall is a gap over {args.gap * 1e3:g} ms']
     for index, result in enumerate(sessions):
         w = result['watchers']
         steal = 100.0 * w['normal']['steal_ticks'] / max(w['normal']['total_ticks'], 1)
-        lines.append(f'session {index} (gc freeze {result["gc_freeze"]}): steal '
+        period = result['announcement_period_s']
+        lines.append(f'session {index} (gc freeze {result["gc_freeze"]}, announcements '
+                     f'{"as set" if period is None else f"every {period:g} s"}, bring-up '
+                     f'{result["bring_up_s"]:.1f} s): steal '
                      f'{steal:.1f} % of CPU time; watcher gaps '
                      f'fifo {len(w["fifo"]["gaps"])} (max '
                      f'{max((g[1] for g in w["fifo"]["gaps"]), default=0) * 1e3:.0f} ms), '
@@ -165,13 +208,23 @@ def main() -> None:
             lines.append(f'  {stall["stream"]:<18} {stall["length_s"] * 1e3:6.0f} ms  '
                          f'{stall["cause"]}')
     for freeze in args.gc_freeze:
-        runs = [r for r in sessions if r['gc_freeze'] == freeze]
-        causes = [s['cause'] for r in runs for s in r['stalls']]
-        longest = [max((s['length_s'] for s in r['stalls']), default=0.0) for r in runs]
-        lines.append(f'gc freeze {freeze}: stream stalls by cause: ' + ', '.join(
-            f'{c} {causes.count(c)}' for c in ('machine', 'contention', 'process'))
-            + f'; per session: median {np.median([len(r["stalls"]) for r in runs]):g}, '
-            f'longest stall median {np.median(longest) * 1e3:.0f} ms')
+        for period in args.announcement_periods:
+            runs = [r for r in sessions
+                    if r['gc_freeze'] == freeze and r['announcement_period_s'] == period]
+            causes = [s['cause'] for r in runs for s in r['stalls']]
+            events = [e['cause'] for r in runs for e in r['events']]
+            longest = [max((s['length_s'] for s in r['stalls']), default=0.0) for r in runs]
+            lines.append(
+                f'gc freeze {freeze}, announcements '
+                f'{"as set" if period is None else f"every {period:g} s"}: stream stalls by '
+                'cause: ' + ', '.join(f'{c} {causes.count(c)}'
+                                      for c in ('machine', 'contention', 'process'))
+                + '; events (overlapping stalls merged) by cause: ' + ', '.join(
+                    f'{c} {events.count(c)}' for c in ('machine', 'contention', 'process'))
+                + f'; per session: stalls median {np.median([len(r["stalls"]) for r in runs]):g}'
+                f', events median {np.median([len(r["events"]) for r in runs]):g}, longest '
+                f'stall median {np.median(longest) * 1e3:.0f} ms, bring-up median '
+                f'{np.median([r["bring_up_s"] for r in runs]):.1f} s')
     write_results(args.results, {'command': ' '.join(sys.argv), 'gap_s': args.gap,
                                  'durations_s': list(args.durations), 'sessions': sessions},
                   lines)

@@ -59,7 +59,7 @@ def refuse_if_occupied(config: SessionConfig, env: dict[str, str] | None = None)
 
     Two sessions on one domain would each take the other's messages: two sources on every
     joint, and reports that mix both. This listens for
-    :data:`~exo_has_runtime.graph.CENSUS_TIME` seconds at most.
+    :func:`~exo_has_runtime.graph.census_time` seconds at most.
 
     Raises
     ------

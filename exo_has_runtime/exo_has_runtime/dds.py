@@ -22,7 +22,8 @@ What :func:`configure_transport` sets, before a process creates its first partic
   shared-memory transport whatever is configured (``rmw_fastrtps_shared_cpp/participant.cpp``),
   so the process takes ``SYSTEM_DEFAULT`` instead, with a Fast DDS profile that does what
   LOCALHOST does without the shared memory: no multicast, unicast discovery of the participants
-  on 127.0.0.1 (and of ``ROS_STATIC_PEERS``), UDP for the data.
+  on 127.0.0.1 (and of ``ROS_STATIC_PEERS``), UDP for the data; and each participant announcing
+  itself every :data:`ANNOUNCEMENT_PERIOD` (:func:`localhost_profile` says why).
 - A child process inherits all this; given a discovery range of its own (a virtual host's
   ``SUBNET``), it drops the inherited LOCALHOST profile and takes what that range calls for.
 - ``OFF``, a profiles file of the user's own (``FASTRTPS_DEFAULT_PROFILES_FILE``), or an RMW
@@ -42,8 +43,9 @@ import math
 import os
 import socket
 import tempfile
-from collections.abc import MutableMapping, Sequence
+from collections.abc import Mapping, MutableMapping, Sequence
 from pathlib import Path
+from xml.etree import ElementTree
 from xml.sax.saxutils import escape
 
 from exo_has_runtime.errors import DdsConfigurationError
@@ -63,6 +65,15 @@ RMW_LOCALHOST_ENVIRONMENT = {
 
 #: How many participants per host unicast discovery tries (rmw_fastrtps_cpp's LOCALHOST value).
 MAX_INITIAL_PEERS_RANGE = 32
+
+#: How often a participant on the LOCALHOST profile announces itself [s].
+ANNOUNCEMENT_PERIOD = 0.5
+
+#: How often Fast DDS has a participant announce itself unless a profile says otherwise [s].
+FAST_DDS_ANNOUNCEMENT_PERIOD = 3.0
+
+#: The XML namespace of Fast DDS's profiles.
+PROFILES_NAMESPACE = 'http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles'
 
 #: How the profiles this module writes are named: the prefix, then a hash of the content.
 PROFILE_PREFIX = 'exo_has_fastdds_'
@@ -121,7 +132,7 @@ def configure_transport(environ: MutableMapping[str, str] | None = None) -> str:
     if discovery == 'LOCALHOST':
         peers = static_peers(env.get('ROS_STATIC_PEERS', ''))
         try:
-            written = write_profile(localhost_profile(peers))
+            written = write_profile(localhost_profile(peers, ANNOUNCEMENT_PERIOD))
         except OSError as exc:
             msg = (f'cannot write the Fast DDS profile for ROS_AUTOMATIC_DISCOVERY_RANGE='
                    f'LOCALHOST into {tempfile.gettempdir()}: {exc}')
@@ -138,6 +149,38 @@ def configure_transport(environ: MutableMapping[str, str] | None = None) -> str:
                 'can stall this process 0.33 s when another process joins the domain '
                 '(exo_has_runtime.dds); UDPv4 avoids it')
     return ''
+
+
+def announcement_period(environ: Mapping[str, str] | None = None) -> float:
+    """Return how often a participant with this environment announces itself [s].
+
+    What the leaseAnnouncement of the default participant profile in
+    ``FASTRTPS_DEFAULT_PROFILES_FILE`` says (:data:`ANNOUNCEMENT_PERIOD` in the one
+    :func:`configure_transport` writes), else Fast DDS's 3 s: also where the file cannot be
+    read or parsed, which Fast DDS reports itself. A newcomer to the domain that misses its
+    first exchange with a participant waits that long for the next.
+    """
+    env = os.environ if environ is None else environ
+    path = env.get('FASTRTPS_DEFAULT_PROFILES_FILE', '').strip()
+    if not path:
+        return FAST_DDS_ANNOUNCEMENT_PERIOD
+    try:
+        root = ElementTree.parse(path).getroot()
+    except (OSError, ElementTree.ParseError):
+        return FAST_DDS_ANNOUNCEMENT_PERIOD
+    for participant in root.iter(f'{{{PROFILES_NAMESPACE}}}participant'):
+        if participant.get('is_default_profile') != 'true':
+            continue
+        period = participant.find(f'.//{{{PROFILES_NAMESPACE}}}leaseAnnouncement')
+        if period is None:
+            break
+        seconds = period.findtext(f'{{{PROFILES_NAMESPACE}}}sec', '0')
+        nanoseconds = period.findtext(f'{{{PROFILES_NAMESPACE}}}nanosec', '0')
+        try:
+            return int(seconds) + int(nanoseconds) * 1e-9
+        except ValueError:
+            break
+    return FAST_DDS_ANNOUNCEMENT_PERIOD
 
 
 def discovery_range(environ: MutableMapping[str, str]) -> str:
@@ -178,18 +221,19 @@ def static_peers(text: str) -> list[str]:
 
 
 def localhost_profile(peers: Sequence[str] = (),
-                      announcement_period: float | None = None) -> str:
+                      announcement_period: float | None = ANNOUNCEMENT_PERIOD) -> str:
     """Return a Fast DDS XML profile: LOCALHOST discovery over UDP alone.
 
     What rmw_fastrtps_cpp sets for LOCALHOST, less its shared-memory transport: no built-in
     transports, one UDPv4 transport trying :data:`MAX_INITIAL_PEERS_RANGE` participants per
     host, a unicast metatraffic locator (so no multicast one), and 127.0.0.1 with ``peers`` as
-    the initial peers. ``announcement_period`` [s]: how often a participant announces itself;
-    None keeps Fast DDS's 3 s, which the processes take. A join whose first exchange with a
-    participant fails (8 of 24 on the test VM) waits for that participant's next announcement:
-    0.5 s bounded those joins at 0.5 s where 3 s let them take 2.7 s (``bench/discovery.py``),
-    but the sessions' nodes stalled over 20 ms more often with it (``bench/stalls.py``; both
-    in bench/README.md, "Discovery").
+    the initial peers. ``announcement_period`` [s]: how often a participant announces itself
+    (None: Fast DDS's 3 s). On this profile one join in four to one in three misses its first
+    exchange with a participant (neither a loopback-only interface nor more initial
+    announcements changed that) and waits for that participant's next announcement: with 3 s,
+    up to 2.9 s, and a session's bring-up took 4.0 to 5.1 s; with 0.5 s, 0.42 s at most and
+    2.5 to 2.7 s, the nodes stalling no more often (``bench/discovery.py``,
+    ``bench/stalls.py``; bench/README.md, "Discovery").
     """
     announcing = ''
     if announcement_period is not None:
@@ -205,7 +249,7 @@ def localhost_profile(peers: Sequence[str] = (),
         '<?xml version="1.0" encoding="UTF-8"?>\n'
         '<!-- Written by exo_has_runtime.dds: ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST without '
         "Fast DDS's shared memory. -->\n"
-        '<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">\n'
+        f'<profiles xmlns="{PROFILES_NAMESPACE}">\n'
         '  <transport_descriptors>\n'
         '    <transport_descriptor>\n'
         '      <transport_id>exo_has_udp</transport_id>\n'

@@ -14,7 +14,9 @@ import pytest
 from exo_has_common.joints import JOINT_NAMES
 from exo_has_common.topics import has_command_topic
 from exo_has_runtime.dds import (
+    ANNOUNCEMENT_PERIOD,
     RMW_LOCALHOST_ENVIRONMENT,
+    announcement_period,
     configure_transport,
     discovery_range,
     is_localhost_profile,
@@ -67,8 +69,11 @@ def test_localhost_becomes_a_udp_profile_that_finds_peers_on_this_machine_and_st
     root = ET.parse(path).getroot()
     assert root.find('.//p:useBuiltinTransports', NAMESPACE).text == 'false'
     assert root.find('.//p:transport_descriptor/p:type', NAMESPACE).text == 'UDPv4'
-    # Fast DDS's own announcement period: a shorter one cost the nodes stalls (bench/stalls.py).
-    assert root.find('.//p:builtin/p:discovery_config', NAMESPACE) is None
+    # Announcements every 0.5 s, not Fast DDS's 3 s: a join that misses its first exchange
+    # waits for the next one (bench/discovery.py).
+    announcement = root.find('.//p:builtin/p:discovery_config/p:leaseAnnouncement', NAMESPACE)
+    assert (announcement.find('p:sec', NAMESPACE).text,
+            announcement.find('p:nanosec', NAMESPACE).text) == ('0', '500000000')
 
 
 def test_the_deprecated_localhost_only_is_taken_as_localhost_and_dropped():
@@ -208,3 +213,18 @@ def test_a_profile_asked_for_another_announcement_period_carries_it_in_seconds_a
     root = ET.fromstring(localhost_profile(announcement_period=3.0))
     announcement = root.find('.//p:builtin/p:discovery_config/p:leaseAnnouncement', NAMESPACE)
     assert announcement.find('p:sec', NAMESPACE).text == '3'
+    root = ET.fromstring(localhost_profile(announcement_period=None))
+    assert root.find('.//p:builtin/p:discovery_config', NAMESPACE) is None  # Fast DDS's own
+
+
+def test_the_announcement_period_is_read_from_the_profile_in_use_else_fast_dds_own(tmp_path):
+    env, _ = configured(ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    assert announcement_period(env) == ANNOUNCEMENT_PERIOD == 0.5
+    assert announcement_period({}) == 3.0  # SUBNET: no profile, Fast DDS's own
+    own = tmp_path / 'own.xml'
+    for text, period in [(localhost_profile(announcement_period=1.25), 1.25),
+                         (localhost_profile(announcement_period=None), 3.0),
+                         ('<profiles><unclosed', 3.0)]:
+        own.write_text(text)
+        assert announcement_period({'FASTRTPS_DEFAULT_PROFILES_FILE': str(own)}) == period
+    assert announcement_period({'FASTRTPS_DEFAULT_PROFILES_FILE': str(tmp_path / 'gone')}) == 3.0

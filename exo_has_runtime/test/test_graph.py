@@ -1,8 +1,20 @@
-"""PublisherWatch: the publishers of a topic by node name, an unnamed one held back a moment."""
+"""PublisherWatch: the publishers of a topic by node name, an unnamed one held back a moment.
+
+And how long a census of a domain listens.
+"""
 
 from types import SimpleNamespace
 
-from exo_has_runtime.graph import UNKNOWN_NODE_NAME, UNNAMED_WAIT_S, PublisherWatch
+import pytest
+
+from exo_has_runtime.dds import localhost_profile, write_profile
+from exo_has_runtime.graph import (
+    CENSUS_MARGIN,
+    UNKNOWN_NODE_NAME,
+    UNNAMED_WAIT_S,
+    PublisherWatch,
+    census_time,
+)
 
 TOPIC = '/left_hip/has_command'
 
@@ -57,3 +69,12 @@ def test_where_the_node_is_not_the_source_one_unnamed_publisher_is_judged_at_onc
     node.publishers.append(publisher('controller', 3))
     assert watch.poll(0.1) == {}  # two, one unnamed: held back
     assert watch.poll(0.1 + UNNAMED_WAIT_S + 0.01)[TOPIC][1] == '/controller'
+
+
+@pytest.mark.parametrize(('period', 'listened'), [(0.5, 2.0), (None, 4.5)])
+def test_a_census_listens_one_announcement_period_and_its_margin(monkeypatch, tmp_path, period,
+                                                                 listened):
+    profile = write_profile(localhost_profile(announcement_period=period), tmp_path)
+    monkeypatch.setenv('FASTRTPS_DEFAULT_PROFILES_FILE', str(profile))
+    assert census_time() == pytest.approx(listened)
+    assert census_time() == pytest.approx((period or 3.0) + CENSUS_MARGIN)
