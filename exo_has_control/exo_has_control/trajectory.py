@@ -136,9 +136,10 @@ def walking_moments(gait: GaitCycle, phase: FloatArray, amplitude: FloatArray) -
 
     """
     phase = np.atleast_1d(np.asarray(phase, dtype=float))
-    left = np.column_stack(gait.moments_at(phase))
-    right = np.column_stack(gait.moments_at(phase + 0.5))
-    return np.atleast_1d(np.asarray(amplitude, dtype=float))[:, None] * np.hstack([left, right])
+    n = len(phase)
+    hip, knee = gait.moments_at(np.concatenate((phase, phase + 0.5)))  # both legs at once
+    moments = np.column_stack((hip[:n], knee[:n], hip[n:], knee[n:]))
+    return np.atleast_1d(np.asarray(amplitude, dtype=float))[:, None] * moments
 
 
 def squatting_moments(angles: FloatArray) -> FloatArray:
@@ -300,7 +301,8 @@ class ReferenceTable:
     interpolated linearly. The moments are not: the gait table's moment curves have corners
     (heel strike) where an interpolated moment misses the one at the sample's phase by up to
     3.4e-3 N m/kg on a 1 ms grid; each sample's moments are evaluated at its own phase and
-    posture (a few microseconds).
+    posture. A sample so takes about 0.07 ms walking and 0.05 ms squatting on the test VM,
+    against 0.03 ms interpolated.
 
     Parameters
     ----------

@@ -112,6 +112,20 @@ def test_the_squat_moments_are_the_virtual_work_of_the_carried_load():
     assert_allclose(squat_moments(0.0, 0.0, mass), [0.0, 0.0], atol=1e-9)
 
 
+def test_each_squatting_posture_balances_the_load_over_the_ankle():
+    # The shank's lean comes from the knee's moment (the knee's lever arm is l_s sin(beta)),
+    # the load's lever arm from the hip's; over the ankle, their sum with the trunk's is 0.
+    rng = np.random.default_rng(3)
+    knee = rng.uniform(0.05, 2.0, 2000)
+    hip = knee * rng.uniform(0.0, 1.0, 2000)
+    weight = 0.5 * 10.0 * GRAVITY
+    hip_moment, knee_moment = squat_moments(hip, knee, 10.0)
+    beta = np.arcsin(knee_moment / weight / SHANK_LENGTH)
+    load_x = -hip_moment / weight + LOAD_HEIGHT * np.sin(hip - knee + beta)
+    assert_allclose(load_x, 0.0, atol=1e-12)
+    assert np.all(knee_moment > 0.0)
+
+
 @pytest.fixture(scope='module')
 def shipped_search():
     """Run the full search on the shipped files' joints once for the module (12 s here)."""
