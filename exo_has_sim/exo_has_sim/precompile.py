@@ -1,12 +1,13 @@
 """Compile the simulator's integrators into numba's on-disk cache before their first use.
 
 A compiled function (:mod:`exo_has_sim.compiled`) is compiled at its first call in a process
-unless the cache holds it for the sources as they are, which takes some 10 s of a core for
-the integrators with the model in them. On a fresh install, or after an edit of the model,
-that falls on whatever runs first: the four plants of the first demo, each compiling the
-step-by-step integrator while its session starts; the first diagnosis; the first tests on
-each worker at once. ``./run`` calls :func:`compile_integrators` after the build, and once
-the cache holds them the call only loads them (about a second).
+unless the cache holds it for the sources as they are, which takes some 14 s of a core for
+the three integrators with the model in them. On a fresh install, or after an edit of the
+model, that falls on whatever runs first: the demo's warm-up before it starts its nodes
+(:func:`exo_has_bringup.demo.warm_up`, 5.6 s for the plant's integrator), a plant node before
+it reports ready, the first diagnosis (8 s for the open loop), the first tests of each
+worker at once. ``./run`` calls :func:`compile_integrators` after the build, and once the
+cache holds them the call only loads them (0.4 s).
 
 Run: ``python -m exo_has_sim.precompile``.
 """
