@@ -299,10 +299,9 @@ class ReferenceTable:
     Evaluating the splines for every sample costs about half a millisecond; a block of one
     second at ``step`` is evaluated at once, and angles and angular velocities in between are
     interpolated linearly. The moments are not: the gait table's moment curves have corners
-    (heel strike) where an interpolated moment misses the one at the sample's phase by up to
-    3.4e-3 N m/kg on a 1 ms grid; each sample's moments are evaluated at its own phase and
-    posture. A sample so takes about 0.07 ms walking and 0.05 ms squatting on the test VM,
-    against 0.03 ms interpolated.
+    (heel strike) where an interpolated moment misses the one at the sample's phase (a
+    session's test once found 3.8e-3 N m/kg); each sample's moments are evaluated at its own
+    phase and posture.
 
     Parameters
     ----------

@@ -20,10 +20,7 @@ from exo_has_runtime.dds import announcement_period
 #: How long a newcomer listens for the nodes already on a domain beyond one announcement
 #: period of their participants [s]. A newcomer that misses its first exchange with a
 #: participant waits for that one's next announcement; ROS 2 carries the node names on
-#: ros_discovery_info, which needs the endpoints discovered too. On the 2-vCPU test VM with a
-#: session running, the census saw its nodes 0.21 to 0.41 s after it started with
-#: announcements every 0.5 s (12 censuses), up to 0.88 s with every 3 s, and up to about three
-#: seconds on a busy machine.
+#: ros_discovery_info, which needs the endpoints discovered too, and a busy machine slows both.
 CENSUS_MARGIN = 1.5
 
 #: How long to listen on once a wanted node was seen, for the others [s].

@@ -183,8 +183,8 @@ def squat_moments(hip_angle: ArrayLike, knee_angle: ArrayLike,
     # Horizontal positions from the ankle, the shank leaning forward by beta: knee at
     # l_s sin(beta), hip at that minus l_t sin(knee - beta), the load at the hip plus
     # h sin(hip - knee + beta). That sum is a sin(beta) - b cos(beta), rising through its zero
-    # at atan2(b, a): the balance in closed form (a bisection took 0.25 ms a call, and the gait
-    # publisher evaluates this at every reference), held to the lean range [0, knee + 0.5].
+    # at atan2(b, a): the balance in closed form (the gait publisher evaluates this at every
+    # reference, where a bisection cost many times more), held to the lean range [0, knee + 0.5].
     a = SHANK_LENGTH + THIGH_LENGTH * np.cos(knee) + LOAD_HEIGHT * np.cos(hip - knee)
     b = THIGH_LENGTH * np.sin(knee) - LOAD_HEIGHT * np.sin(hip - knee)
     beta = np.clip(np.arctan2(b, a), 0.0, np.maximum(knee, 0.0) + 0.5)
