@@ -17,7 +17,10 @@ GIL, a blocking call in DDS). The watchers also sample the machine's steal time.
 ``--gc-freeze on off`` runs the sessions with and without the nodes' freezing of their
 start-up objects (``EXO_HAS_GC_FREEZE``, :func:`exo_has_runtime.execution.freeze_startup_objects`),
 taking turns; ``--announcement-periods 3 0.5`` with each period of the participants'
-announcements [s] (:func:`exo_has_runtime.dds.localhost_profile`), taking turns likewise.
+announcements [s] (:func:`exo_has_runtime.dds.localhost_profile`), taking turns likewise;
+``--background none idle`` without and with a diagnosis per core running all along at the
+lowest CPU priority (``tools/at_idle_priority``, as ``./run test`` runs its slow tests beside
+the process tests), taking turns likewise.
 
 Run (in ``./run shell``, as root): ``python bench/stalls.py --sessions 5``.
 """
@@ -25,6 +28,7 @@ Run (in ``./run shell``, as root): ``python bench/stalls.py --sessions 5``.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import subprocess
@@ -46,6 +50,9 @@ from exo_has_runtime.dds import localhost_profile, write_profile
 from exo_has_runtime.processes import Processes
 
 WATCH_PRIORITY = 60  # SCHED_FIFO: above the plants' real-time priority option (50)
+ROOT = Path(__file__).resolve().parents[1]
+#: What ``--background idle`` diagnoses over and over: the worked example's bag.
+EXAMPLE = ROOT / 'bags' / 'example_diagnosis'
 
 
 def watch(gap_s: float, duration_s: float, fifo: bool) -> dict[str, object]:
@@ -68,6 +75,16 @@ def watch(gap_s: float, duration_s: float, fifo: bool) -> dict[str, object]:
         before = now
     steal1, total1 = _steal_ticks()
     return {'gaps': gaps, 'steal_ticks': steal1 - steal0, 'total_ticks': total1 - total0}
+
+
+def burn(folder: Path) -> None:
+    """Diagnose the worked example's bag over and over (``exo-has diagnose``) until killed."""
+    from exo_has_sim.diagnosis.cli import main as diagnose
+
+    while True:
+        diagnose([str(EXAMPLE / 'bag'), '--joint', 'left_hip', '--params',
+                  str(ROOT / 'test' / 'bench_rig' / 'hip.yaml'), '--load-mass', '50',
+                  '--json', str(folder / f'{os.getpid()}.json'), '-q'])
 
 
 def _steal_ticks() -> tuple[int, int]:
@@ -95,11 +112,13 @@ def _overlaps(start: float, length: float, gaps: list[list[float]], slack: float
 
 
 def run(folder: Path, gap_s: float, durations: tuple[float, float],
-        gc_freeze: str = 'on', announcement_period: float | None = None) -> dict[str, object]:
+        gc_freeze: str = 'on', announcement_period: float | None = None,
+        background: str = 'none') -> dict[str, object]:
     """One walking and squatting session with the two watchers; its stalls, classified.
 
     ``announcement_period`` [s]: the nodes on the LOCALHOST profile announcing so often (None:
-    the environment's discovery settings as they are).
+    the environment's discovery settings as they are). ``background``: ``idle`` runs a
+    diagnosis per core at the lowest CPU priority from before the session starts to its end.
     """
     config = SessionConfig(('walk', 'squat'), durations, 200.0)
     env = {'EXO_HAS_GC_FREEZE': '1' if gc_freeze == 'on' else '0'}
@@ -108,8 +127,15 @@ def run(folder: Path, gap_s: float, durations: tuple[float, float],
         env |= {'FASTRTPS_DEFAULT_PROFILES_FILE': str(profile),
                 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SYSTEM_DEFAULT'}
     session = Session(config, folder, env=env)
-    started = time.monotonic()
+    burns = folder.with_name(f'{folder.name}-burn')
+    burns.mkdir(parents=True)
     with Processes() as processes:
+        if background == 'idle':
+            for _ in range(os.cpu_count() or 1):
+                processes.start([str(ROOT / 'tools' / 'at_idle_priority'), sys.executable,
+                                 __file__, '--burn', str(burns)],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        started = time.monotonic()
         session.start(show=lambda line: None)
         bring_up = time.monotonic() - started
         try:
@@ -137,7 +163,7 @@ def run(folder: Path, gap_s: float, durations: tuple[float, float],
         stalls.append({'stream': name, 'start': start, 'length_s': round(length, 3),
                        'cause': cause})
     return {'gc_freeze': gc_freeze, 'announcement_period_s': announcement_period,
-            'bring_up_s': round(bring_up, 3), 'stalls': stalls,
+            'background': background, 'bring_up_s': round(bring_up, 3), 'stalls': stalls,
             'events': stall_events(stalls), 'watchers': seen}
 
 
@@ -174,10 +200,16 @@ def main() -> None:
     parser.add_argument('--announcement-periods', type=float, nargs='+', default=[None],
                         metavar='S', help="the participants' announcement period [s], in turn "
                         "(default: the environment's settings)")
+    parser.add_argument('--background', nargs='+', choices=('none', 'idle'), default=['none'],
+                        help='a diagnosis per core at the lowest CPU priority beside the '
+                        'session (idle) or nothing, in turn')
     parser.add_argument('--results', default='stalls', help='results file name')
     parser.add_argument('--watch', choices=('fifo', 'normal'), help=argparse.SUPPRESS)
     parser.add_argument('--duration', type=float, help=argparse.SUPPRESS)
+    parser.add_argument('--burn', type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.burn:
+        burn(args.burn)
     if args.watch:
         print(json.dumps(watch(args.gap, args.duration, args.watch == 'fifo')))
         return
@@ -188,8 +220,10 @@ def main() -> None:
         for index in range(args.sessions):
             for freeze in args.gc_freeze:
                 for k, period in enumerate(args.announcement_periods):
-                    sessions.append(run(Path(folder) / f's{index}{freeze}{k}', args.gap,
-                                        tuple(args.durations), freeze, period))
+                    for background in args.background:
+                        sessions.append(run(Path(folder) / f's{index}{freeze}{k}{background}',
+                                            args.gap, tuple(args.durations), freeze, period,
+                                            background))
     lines = [f'{args.sessions} sessions, walk {args.durations[0]:g} s + squat '
              f'{args.durations[1]:g} s at 200 Hz; a stall is a gap over {args.gap * 1e3:g} ms']
     for index, result in enumerate(sessions):
@@ -197,7 +231,8 @@ def main() -> None:
         steal = 100.0 * w['normal']['steal_ticks'] / max(w['normal']['total_ticks'], 1)
         period = result['announcement_period_s']
         lines.append(f'session {index} (gc freeze {result["gc_freeze"]}, announcements '
-                     f'{"as set" if period is None else f"every {period:g} s"}, bring-up '
+                     f'{"as set" if period is None else f"every {period:g} s"}, background '
+                     f'{result["background"]}, bring-up '
                      f'{result["bring_up_s"]:.1f} s): steal '
                      f'{steal:.1f} % of CPU time; watcher gaps '
                      f'fifo {len(w["fifo"]["gaps"])} (max '
@@ -208,15 +243,18 @@ def main() -> None:
             lines.append(f'  {stall["stream"]:<18} {stall["length_s"] * 1e3:6.0f} ms  '
                          f'{stall["cause"]}')
     for freeze in args.gc_freeze:
-        for period in args.announcement_periods:
+        for period, background in itertools.product(args.announcement_periods,
+                                                     args.background):
             runs = [r for r in sessions
-                    if r['gc_freeze'] == freeze and r['announcement_period_s'] == period]
+                    if r['gc_freeze'] == freeze and r['announcement_period_s'] == period
+                    and r['background'] == background]
             causes = [s['cause'] for r in runs for s in r['stalls']]
             events = [e['cause'] for r in runs for e in r['events']]
             longest = [max((s['length_s'] for s in r['stalls']), default=0.0) for r in runs]
             lines.append(
                 f'gc freeze {freeze}, announcements '
-                f'{"as set" if period is None else f"every {period:g} s"}: stream stalls by '
+                f'{"as set" if period is None else f"every {period:g} s"}, background '
+                f'{background}: stream stalls by '
                 'cause: ' + ', '.join(f'{c} {causes.count(c)}'
                                       for c in ('machine', 'contention', 'process'))
                 + '; events (overlapping stalls merged) by cause: ' + ', '.join(
