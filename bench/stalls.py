@@ -18,9 +18,10 @@ GIL, a blocking call in DDS). The watchers also sample the machine's steal time.
 start-up objects (``EXO_HAS_GC_FREEZE``, :func:`exo_has_runtime.execution.freeze_startup_objects`),
 taking turns; ``--announcement-periods 3 0.5`` with each period of the participants'
 announcements [s] (:func:`exo_has_runtime.dds.localhost_profile`), taking turns likewise;
-``--background none idle`` without and with a diagnosis per core running all along at the
-lowest CPU priority (``tools/at_idle_priority``, as ``./run test`` runs its slow tests beside
-the process tests), taking turns likewise.
+``--background none idle spin`` without and with a diagnosis per core running all along at
+the lowest CPU priority (``tools/at_idle_priority``, as ``./run test`` runs its slow tests
+beside the process tests), or a bare loop per core at that priority, which only keeps the CPUs
+busy, taking turns likewise.
 
 Run (in ``./run shell``, as root): ``python bench/stalls.py --sessions 5``.
 """
@@ -77,6 +78,12 @@ def watch(gap_s: float, duration_s: float, fifo: bool) -> dict[str, object]:
     return {'gaps': gaps, 'steal_ticks': steal1 - steal0, 'total_ticks': total1 - total0}
 
 
+def spin() -> None:
+    """Keep a CPU busy, touching no memory, until killed."""
+    while True:
+        pass
+
+
 def burn(folder: Path) -> None:
     """Diagnose the worked example's bag over and over (``exo-has diagnose``) until killed."""
     from exo_has_sim.diagnosis.cli import main as diagnose
@@ -118,7 +125,8 @@ def run(folder: Path, gap_s: float, durations: tuple[float, float],
 
     ``announcement_period`` [s]: the nodes on the LOCALHOST profile announcing so often (None:
     the environment's discovery settings as they are). ``background``: ``idle`` runs a
-    diagnosis per core at the lowest CPU priority from before the session starts to its end.
+    diagnosis per core at the lowest CPU priority from before the session starts to its end,
+    ``spin`` a bare loop per core so.
     """
     config = SessionConfig(('walk', 'squat'), durations, 200.0)
     env = {'EXO_HAS_GC_FREEZE': '1' if gc_freeze == 'on' else '0'}
@@ -130,10 +138,11 @@ def run(folder: Path, gap_s: float, durations: tuple[float, float],
     burns = folder.with_name(f'{folder.name}-burn')
     burns.mkdir(parents=True)
     with Processes() as processes:
-        if background == 'idle':
+        if background != 'none':
+            work = ['--burn', str(burns)] if background == 'idle' else ['--spin']
             for _ in range(os.cpu_count() or 1):
                 processes.start([str(ROOT / 'tools' / 'at_idle_priority'), sys.executable,
-                                 __file__, '--burn', str(burns)],
+                                 __file__, *work],
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         started = time.monotonic()
         session.start(show=lambda line: None)
@@ -200,14 +209,18 @@ def main() -> None:
     parser.add_argument('--announcement-periods', type=float, nargs='+', default=[None],
                         metavar='S', help="the participants' announcement period [s], in turn "
                         "(default: the environment's settings)")
-    parser.add_argument('--background', nargs='+', choices=('none', 'idle'), default=['none'],
-                        help='a diagnosis per core at the lowest CPU priority beside the '
-                        'session (idle) or nothing, in turn')
+    parser.add_argument('--background', nargs='+', choices=('none', 'idle', 'spin'),
+                        default=['none'], help='beside the session, at the lowest CPU '
+                        'priority, a diagnosis per core (idle), a bare loop per core (spin) '
+                        'or nothing, in turn')
     parser.add_argument('--results', default='stalls', help='results file name')
     parser.add_argument('--watch', choices=('fifo', 'normal'), help=argparse.SUPPRESS)
     parser.add_argument('--duration', type=float, help=argparse.SUPPRESS)
     parser.add_argument('--burn', type=Path, help=argparse.SUPPRESS)
+    parser.add_argument('--spin', action='store_true', help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.spin:
+        spin()
     if args.burn:
         burn(args.burn)
     if args.watch:

@@ -1,0 +1,45 @@
+"""tools/at_idle_priority: what ./run test runs its slow tests under, beside the process tests."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+TOOL = Path(__file__).resolve().parents[1] / 'tools' / 'at_idle_priority'
+#: Prints the policy of the process it runs in and its autogroup's line (or none).
+REPORT = ('import os, pathlib; group = pathlib.Path("/proc/self/autogroup"); '
+          'print(os.sched_getscheduler(0)); '
+          'print(group.read_text().strip() if group.exists() else "none")')
+
+
+def report(*prefix: str) -> tuple[int, str]:
+    """Run REPORT under ``prefix``; return the policy and the autogroup line it printed."""
+    out = subprocess.run([*prefix, str(TOOL), sys.executable, '-c', REPORT], check=True,
+                         capture_output=True, text=True, timeout=30).stdout.splitlines()
+    return int(out[0]), out[1]
+
+
+def own_autogroup() -> str:
+    """Return this process's autogroup line, or none where the kernel has no autogroups."""
+    group = Path('/proc/self/autogroup')
+    return group.read_text().strip() if group.exists() else 'none'
+
+
+def test_a_command_in_a_session_of_its_own_runs_at_idle_priority_in_a_group_of_nice_19() -> None:
+    policy, group = report('setsid', '--wait')
+    assert policy == os.SCHED_IDLE
+    if group == 'none':
+        pytest.skip('this kernel shares the CPU without autogroups')
+    assert group.endswith(' nice 19'), group
+    assert group.split()[0] != own_autogroup().split()[0]
+
+
+def test_a_command_left_in_its_callers_session_leaves_the_callers_group_as_it_was() -> None:
+    before = own_autogroup()
+    policy, group = report()
+    assert policy == os.SCHED_IDLE
+    assert group == before == own_autogroup()
