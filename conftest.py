@@ -17,15 +17,10 @@ from exo_has_runtime.processes import children
 # Before any participant exists: child processes inherit both, so a test run never meets the
 # nodes of another run (or of a demo) on this machine, nor anything on the network. A
 # pytest-xdist worker (gw0, gw1, ...) inherits its run's domain and takes the next ones, so
-# that the workers of one run do not meet either. A run's domain is drawn at random, or given by
-# EXO_HAS_TEST_DOMAIN_ID where runs share the machine at once (./run test gives each of its
-# three runs domains of their own), not by ROS_DOMAIN_ID, which a user's shell may set for
-# their robot.
+# that the workers of one run do not meet either.
 _worker = os.environ.get('PYTEST_XDIST_WORKER', '')
 if _worker.startswith('gw') and os.environ.get('ROS_DOMAIN_ID', '').isdigit():
     os.environ['ROS_DOMAIN_ID'] = str(int(os.environ['ROS_DOMAIN_ID']) + 1 + int(_worker[2:]))
-elif os.environ.get('EXO_HAS_TEST_DOMAIN_ID', '').isdigit():
-    os.environ['ROS_DOMAIN_ID'] = os.environ['EXO_HAS_TEST_DOMAIN_ID']
 else:
     os.environ['ROS_DOMAIN_ID'] = str(random.SystemRandom().randint(100, 200))
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'

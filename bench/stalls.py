@@ -19,9 +19,9 @@ start-up objects (``EXO_HAS_GC_FREEZE``, :func:`exo_has_runtime.execution.freeze
 taking turns; ``--announcement-periods 3 0.5`` with each period of the participants'
 announcements [s] (:func:`exo_has_runtime.dds.localhost_profile`), taking turns likewise;
 ``--background none idle spin`` without and with a diagnosis per core running all along at
-the lowest CPU priority (``tools/at_idle_priority``, as ``./run test`` runs its slow tests
-beside the process tests), or a bare loop per core at that priority, which only keeps the CPUs
-busy, taking turns likewise.
+the lowest CPU priority (``tools/at_idle_priority``: what running the suite's slow tests beside
+its process tests would cost the nodes), or a bare loop per core at that priority, which only
+keeps the CPUs busy, taking turns likewise.
 
 Run (in ``./run shell``, as root): ``python bench/stalls.py --sessions 5``.
 """

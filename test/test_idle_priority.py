@@ -1,4 +1,4 @@
-"""tools/at_idle_priority: what ./run test runs its slow tests under, beside the process tests."""
+"""tools/at_idle_priority: the lowest CPU priority, as bench/stalls.py --background runs a load."""
 
 from __future__ import annotations
 
