@@ -37,6 +37,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 
@@ -78,13 +79,13 @@ def watch(gap_s: float, duration_s: float, fifo: bool) -> dict[str, object]:
     return {'gaps': gaps, 'steal_ticks': steal1 - steal0, 'total_ticks': total1 - total0}
 
 
-def spin() -> None:
+def spin() -> NoReturn:
     """Keep a CPU busy, touching no memory, until killed."""
     while True:
         pass
 
 
-def burn(folder: Path) -> None:
+def burn(folder: Path) -> NoReturn:
     """Diagnose the worked example's bag over and over (``exo-has diagnose``) until killed."""
     from exo_has_sim.diagnosis.cli import main as diagnose
 
@@ -135,11 +136,13 @@ def run(folder: Path, gap_s: float, durations: tuple[float, float],
         env |= {'FASTRTPS_DEFAULT_PROFILES_FILE': str(profile),
                 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SYSTEM_DEFAULT'}
     session = Session(config, folder, env=env)
-    burns = folder.with_name(f'{folder.name}-burn')
-    burns.mkdir(parents=True)
     with Processes() as processes:
         if background != 'none':
-            work = ['--burn', str(burns)] if background == 'idle' else ['--spin']
+            work = ['--spin']
+            if background == 'idle':
+                burns = folder.with_name(f'{folder.name}-burn')  # the diagnoses' documents
+                burns.mkdir(parents=True)
+                work = ['--burn', str(burns)]
             for _ in range(os.cpu_count() or 1):
                 processes.start([str(ROOT / 'tools' / 'at_idle_priority'), sys.executable,
                                  __file__, *work],
