@@ -10,27 +10,32 @@ from pathlib import Path
 import pytest
 
 TOOL = Path(__file__).resolve().parents[1] / 'tools' / 'at_idle_priority'
-#: Prints the policy of the process it runs in and its autogroup's line (or none, as below).
-REPORT = ('import os, pathlib; group = pathlib.Path("/proc/self/autogroup"); '
+AUTOGROUP = Path('/proc/self/autogroup')
+#: Prints the policy of the process it runs in and its autogroup file as read (empty if none).
+REPORT = (f'import os, pathlib; group = pathlib.Path("{AUTOGROUP}"); '
           'print(os.sched_getscheduler(0)); '
-          'print((group.read_text().strip() if group.exists() else "") or "none")')
+          'print(group.read_text().strip() if group.exists() else "")')
 
 
 def report(*prefix: str) -> tuple[int, str]:
     """Run REPORT under ``prefix``; return the policy and the autogroup line it printed."""
     out = subprocess.run([*prefix, str(TOOL), sys.executable, '-c', REPORT], check=True,
-                         capture_output=True, text=True, timeout=30).stdout.splitlines()
-    return int(out[0]), out[1]
+                         capture_output=True, text=True, timeout=30).stdout.split('\n')
+    return int(out[0]), group_line(out[1])
 
 
 def own_autogroup() -> str:
-    """Return this process's autogroup line, or none where it has none.
+    """Return this process's autogroup line, or none where it has none (:func:`group_line`)."""
+    return group_line(AUTOGROUP.read_text().strip() if AUTOGROUP.exists() else '')
+
+
+def group_line(read: str) -> str:
+    """Return an autogroup file's line as read, or none for an empty or missing file.
 
     The kernel may have no autogroups, and it prints an empty line for a task that a cgroup of
     its own shares the CPU for (as in a container).
     """
-    group = Path('/proc/self/autogroup')
-    return (group.read_text().strip() if group.exists() else '') or 'none'
+    return read or 'none'
 
 
 def test_a_command_in_a_session_of_its_own_runs_at_idle_priority_in_a_group_of_nice_19() -> None:
