@@ -93,6 +93,19 @@ def restore_threads(saved: dict[int, int]) -> None:
 RESULTS = Path(__file__).resolve().parent / 'results'
 
 
+def machine_ticks() -> tuple[int, int, int]:
+    """Return the machine's busy, stolen and total CPU clock ticks since boot (``/proc/stat``).
+
+    Busy is user, nice, system, irq and softirq time; total adds idle, iowait and steal (guest
+    time is already counted in user and nice).
+    """
+    with open('/proc/stat', encoding='ascii') as handle:
+        user, nice, system, idle, iowait, irq, softirq, steal = \
+            (int(v) for v in handle.readline().split()[1:9])
+    busy = user + nice + system + irq + softirq
+    return busy, steal, busy + idle + iowait + steal
+
+
 def cpu_seconds(pid: int) -> float:
     """User plus system CPU time of a process [s]."""
     fields = stat_fields(pid)

@@ -60,7 +60,7 @@ from pathlib import Path
 import can
 import numpy as np
 import rclpy
-from common import TICK, cpu_seconds, describe_machine, on_this_machine
+from common import TICK, cpu_seconds, describe_machine, machine_ticks, on_this_machine
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 
@@ -99,8 +99,8 @@ NOTICE = re.compile(r'^(\[(WARN|ERROR|FATAL)\].*|.*\b(WARNING|ERROR|Traceback)\b
 
 def machine_busy_seconds() -> float:
     """CPU time all processors spent busy since boot [s] (/proc/stat: all but idle and iowait)."""
-    fields = [int(x) for x in Path('/proc/stat').read_text().split('\n', 1)[0].split()[1:9]]
-    return (sum(fields) - fields[3] - fields[4]) / TICK
+    busy, steal, _ = machine_ticks()
+    return (busy + steal) / TICK
 
 
 def can_socket_drops(pid: int) -> int | None:

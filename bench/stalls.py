@@ -43,7 +43,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import write_results
+from common import machine_ticks, write_results
 
 from exo_has_bringup.analysis import read_session
 from exo_has_bringup.plan import SessionConfig
@@ -65,7 +65,7 @@ def watch(gap_s: float, duration_s: float, fifo: bool) -> dict[str, object]:
     """
     if fifo:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(WATCH_PRIORITY))
-    steal0, total0 = _steal_ticks()
+    _, steal0, total0 = machine_ticks()
     gaps: list[list[float]] = []
     end = time.time() + duration_s
     before = time.time()
@@ -75,7 +75,7 @@ def watch(gap_s: float, duration_s: float, fifo: bool) -> dict[str, object]:
         if now - before > gap_s:
             gaps.append([before, now - before])
         before = now
-    steal1, total1 = _steal_ticks()
+    _, steal1, total1 = machine_ticks()
     return {'gaps': gaps, 'steal_ticks': steal1 - steal0, 'total_ticks': total1 - total0}
 
 
@@ -93,12 +93,6 @@ def burn(folder: Path) -> NoReturn:
         diagnose([str(EXAMPLE / 'bag'), '--joint', 'left_hip', '--params',
                   str(ROOT / 'test' / 'bench_rig' / 'hip.yaml'), '--load-mass', '50',
                   '--json', str(folder / f'{os.getpid()}.json'), '-q'])
-
-
-def _steal_ticks() -> tuple[int, int]:
-    """Steal and total CPU ticks of the whole machine, from /proc/stat."""
-    fields = [int(v) for v in Path('/proc/stat').read_text().split('\n', 1)[0].split()[1:]]
-    return fields[7], sum(fields)
 
 
 def stream_stalls(bag: Path, gap_s: float) -> list[tuple[str, float, float]]:

@@ -9,8 +9,8 @@ nothing where that is unset:
   a diagnosis pool, the nodes of a session), the wall seconds, the tests;
 - per run, on the process that started it (the controller where xdist runs workers): the marker
   expression, the wall seconds from the session's start to its end, the machine's busy cores
-  over them (``/proc/stat``: user, nice, system, irq and softirq time; steal apart) and the exit
-  status.
+  over them (``common.machine_ticks``: user, nice, system, irq and softirq time; steal apart)
+  and the exit status.
 
 Lines are appended whole (``O_APPEND``), so that the workers of one run may share the file.
 """
@@ -24,6 +24,7 @@ import time
 from typing import Any
 
 import pytest
+from common import machine_ticks
 
 #: The variable naming the file of records; without it the plugin records nothing.
 OUT_VARIABLE = 'SUITE_TIME_OUT'
@@ -37,15 +38,6 @@ def cpu_seconds() -> tuple[float, float]:
     own = resource.getrusage(resource.RUSAGE_SELF)
     reaped = resource.getrusage(resource.RUSAGE_CHILDREN)
     return own.ru_utime + own.ru_stime, reaped.ru_utime + reaped.ru_stime
-
-
-def machine_ticks() -> tuple[int, int, int]:
-    """Return the machine's busy, stolen and total clock ticks since boot (``/proc/stat``)."""
-    with open('/proc/stat', encoding='ascii') as handle:
-        fields = [int(v) for v in handle.readline().split()[1:9]]
-    user, nice, system, idle, iowait, irq, softirq, steal = fields
-    busy = user + nice + system + irq + softirq
-    return busy, steal, busy + idle + iowait + steal
 
 
 def _append(record: dict[str, Any]) -> None:
